@@ -1,0 +1,319 @@
+//! `raytile render`, `raytile hits` and `raytile validate`: the renderer on local files,
+//! with a progress bar on a terminal and `--stats` phase timings.
+
+use std::fs::File;
+use std::io::{IsTerminal, Read};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use super::TraceOptions;
+use crate::output::{HitFormat, HitSink, PngSink};
+use crate::render::{
+    self, ColourKernel, HitKernel, Kernel, Rect, Renderer, SinkClosed, Tile, TileSink,
+};
+use crate::scene::{self, Limits, Scene, SceneError};
+
+/// `raytile render`.
+#[derive(Debug, clap::Args)]
+pub struct RenderArgs {
+    #[command(flatten)]
+    opts: TraceOptions,
+    /// The PNG to write.
+    #[arg(short, long)]
+    output: PathBuf,
+}
+
+/// `raytile hits`.
+#[derive(Debug, clap::Args)]
+pub struct HitsArgs {
+    #[command(flatten)]
+    opts: TraceOptions,
+    /// The file to write: `.json`, `.ndjson` or `.npy`.
+    #[arg(short, long)]
+    output: PathBuf,
+    /// The format, when the extension does not say.
+    #[arg(long, value_parser = ["json", "ndjson", "npy"])]
+    format: Option<String>,
+}
+
+/// `raytile validate`.
+#[derive(Debug, clap::Args)]
+pub struct ValidateArgs {
+    /// The scene file (JSON); `-` reads standard input.
+    scene: PathBuf,
+    /// Print the normalised scene (every default explicit) when it is valid.
+    #[arg(long)]
+    normalised: bool,
+}
+
+/// Reads a scene file (or standard input) and validates it, without limits.
+pub fn load_scene(path: &Path) -> anyhow::Result<Scene> {
+    let bytes = read_input(path)?;
+    scene::parse(&bytes, &Limits::NONE).map_err(|e| scene_error(path, e))
+}
+
+fn read_input(path: &Path) -> anyhow::Result<Vec<u8>> {
+    if path == Path::new("-") {
+        let mut b = Vec::new();
+        std::io::stdin()
+            .read_to_end(&mut b)
+            .context("cannot read the scene from standard input")?;
+        Ok(b)
+    } else {
+        std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))
+    }
+}
+
+fn scene_error(path: &Path, e: SceneError) -> anyhow::Error {
+    match &e {
+        SceneError::Syntax { .. } => anyhow::anyhow!("{}: {e}", path.display()),
+        SceneError::Invalid(problems) => {
+            let list: Vec<String> = problems.iter().map(|p| format!("  {p}")).collect();
+            anyhow::anyhow!(
+                "{}: the scene is invalid:\n{}",
+                path.display(),
+                list.join("\n")
+            )
+        }
+    }
+}
+
+/// `raytile validate`.
+pub fn validate(a: ValidateArgs) -> anyhow::Result<ExitCode> {
+    let bytes = read_input(&a.scene)?;
+    match scene::parse(&bytes, &Limits::NONE) {
+        Ok(s) => {
+            if a.normalised {
+                println!("{}", serde_json::to_string_pretty(&s.normalised)?);
+            } else {
+                println!(
+                    "{}: valid: {} × {} pixels, {} samples per pixel, {} objects, {} triangles, {} lights",
+                    a.scene.display(),
+                    s.width,
+                    s.height,
+                    s.samples * s.samples,
+                    s.objects.len(),
+                    s.triangles(),
+                    s.lights.len()
+                );
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Err(SceneError::Invalid(problems)) => {
+            println!(
+                "{}: invalid, {} problem(s):",
+                a.scene.display(),
+                problems.len()
+            );
+            for p in problems {
+                println!("  {p}");
+            }
+            Ok(ExitCode::from(1))
+        }
+        Err(e) => {
+            println!("{}: {e}", a.scene.display());
+            Ok(ExitCode::from(1))
+        }
+    }
+}
+
+/// `raytile render`.
+pub fn render(a: RenderArgs) -> anyhow::Result<ExitCode> {
+    run_traced(
+        "render",
+        &a.opts,
+        &a.output,
+        |r, region, tile, sink_file, timing| {
+            let sink = PngSink::new(sink_file, region, tile)?;
+            let stats = trace_into(&ColourKernel(r), region, tile, &sink, timing)?;
+            let t = Instant::now();
+            sink.finish()?;
+            timing.finish = t.elapsed();
+            Ok(stats)
+        },
+    )
+}
+
+/// `raytile hits`.
+pub fn hits(a: HitsArgs) -> anyhow::Result<ExitCode> {
+    let format = match a.format.as_deref() {
+        Some("json") => HitFormat::Json,
+        Some("ndjson") => HitFormat::Ndjson,
+        Some("npy") => HitFormat::Npy,
+        _ => HitFormat::from_path(&a.output).with_context(|| {
+            format!(
+                "cannot tell the format of {}: use .json, .ndjson or .npy, or --format",
+                a.output.display()
+            )
+        })?,
+    };
+    run_traced(
+        "hits",
+        &a.opts,
+        &a.output,
+        |r, region, tile, file, timing| {
+            let sink = HitSink::new(
+                &r.scene,
+                format,
+                std::io::BufWriter::with_capacity(1 << 20, file),
+                region,
+                tile,
+            )?;
+            let stats = trace_into(&HitKernel(r), region, tile, &sink, timing)?;
+            let t = Instant::now();
+            sink.finish()?;
+            timing.finish = t.elapsed();
+            Ok(stats)
+        },
+    )
+}
+
+#[derive(Default)]
+struct Timing {
+    trace: Duration,
+    sink_thread: Duration,
+    finish: Duration,
+}
+
+fn run_traced(
+    command: &str,
+    opts: &TraceOptions,
+    output: &Path,
+    body: impl FnOnce(&Renderer, Rect, u32, File, &mut Timing) -> anyhow::Result<render::RenderStats>
+    + Send,
+) -> anyhow::Result<ExitCode> {
+    let t0 = Instant::now();
+    let scene = Arc::new(load_scene(&opts.scene)?);
+    let parse_s = t0.elapsed();
+    let frame = Rect::frame(scene.width, scene.height);
+    let region = opts.region.unwrap_or(frame);
+    if !region.within(&frame) {
+        bail!(
+            "the region {},{},{},{} does not lie within the {} × {} frame",
+            region.x,
+            region.y,
+            region.width,
+            region.height,
+            frame.width,
+            frame.height
+        );
+    }
+    let pool = {
+        let mut b = rayon::ThreadPoolBuilder::new();
+        if let Some(n) = opts.threads {
+            b = b.num_threads(n.max(1));
+        }
+        b.build().context("cannot start the worker threads")?
+    };
+    let t1 = Instant::now();
+    let renderer = pool.install(|| Renderer::new(scene.clone()));
+    let build_s = t1.elapsed();
+    let file =
+        File::create(output).with_context(|| format!("cannot create {}", output.display()))?;
+    let mut timing = Timing::default();
+    let result = pool.install(|| body(&renderer, region, opts.tile, file, &mut timing));
+    let stats = match result {
+        Ok(s) => s,
+        Err(e) => {
+            let _ = std::fs::remove_file(output);
+            return Err(e.context(format!("cannot write {}", output.display())));
+        }
+    };
+    if opts.stats {
+        let primary = region.pixels()
+            * if command == "render" {
+                scene.samples as u64 * scene.samples as u64
+            } else {
+                1
+            };
+        let line = serde_json::json!({
+            "command": command,
+            "width": region.width,
+            "height": region.height,
+            "samples": scene.samples,
+            "objects": scene.objects.len(),
+            "triangles": scene.triangles(),
+            "threads": pool.current_num_threads(),
+            "tile": opts.tile,
+            "parse_s": parse_s.as_secs_f64(),
+            "build_s": build_s.as_secs_f64(),
+            "trace_s": timing.trace.as_secs_f64(),
+            "encode_s": timing.sink_thread.as_secs_f64() + timing.finish.as_secs_f64(),
+            "total_s": t0.elapsed().as_secs_f64(),
+            "primary_rays": primary,
+            "rays": stats.rays,
+            "primary_mrays_per_s": primary as f64 / timing.trace.as_secs_f64() / 1e6,
+        });
+        eprintln!("{line}");
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Runs the tile loop with a progress bar (on a terminal) and sink timing around `sink`.
+fn trace_into<K: Kernel, S: TileSink<K::Pixel>>(
+    kernel: &K,
+    region: Rect,
+    tile: u32,
+    sink: &S,
+    timing: &mut Timing,
+) -> anyhow::Result<render::RenderStats> {
+    let tiles = region.tiles(tile).len() as u64;
+    let bar = if std::io::stderr().is_terminal() {
+        let b = ProgressBar::new(tiles);
+        b.set_style(
+            ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} tiles  {msg}",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        Some(b)
+    } else {
+        None
+    };
+    let observed = Observed {
+        inner: sink,
+        bar: bar.as_ref(),
+        rays: AtomicU64::new(0),
+        sink_nanos: AtomicU64::new(0),
+        start: Instant::now(),
+    };
+    let t = Instant::now();
+    let result = render::run(kernel, region, tile, &render::Cancel::new(), &observed);
+    timing.trace = t.elapsed();
+    timing.sink_thread = Duration::from_nanos(observed.sink_nanos.load(Ordering::Relaxed));
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    Ok(result?)
+}
+
+/// Wraps a sink: advances the progress bar and times the sink's own work.
+struct Observed<'a, S> {
+    inner: &'a S,
+    bar: Option<&'a ProgressBar>,
+    rays: AtomicU64,
+    sink_nanos: AtomicU64,
+    start: Instant,
+}
+
+impl<T, S: TileSink<T>> TileSink<T> for Observed<'_, S> {
+    fn tile(&self, tile: Tile<T>) -> Result<(), SinkClosed> {
+        let rays = self.rays.fetch_add(tile.rays, Ordering::Relaxed) + tile.rays;
+        let t = Instant::now();
+        let r = self.inner.tile(tile);
+        self.sink_nanos
+            .fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        if let Some(b) = self.bar {
+            b.inc(1);
+            let secs = self.start.elapsed().as_secs_f64().max(1e-9);
+            b.set_message(format!("{:.2} Mrays/s", rays as f64 / secs / 1e6));
+        }
+        r
+    }
+}

@@ -1,0 +1,81 @@
+//! The command line: `render`, `hits` and `validate` a scene file, and the server
+//! commands. Each subcommand lives in its own file; `main.rs` only calls [`run`].
+
+mod local;
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+
+use crate::render::Rect;
+
+/// raytile: ray trace JSON scenes, from the command line or as an HTTP service.
+#[derive(Debug, Parser)]
+#[command(name = "raytile", version, about, long_about = None)]
+pub struct Cli {
+    /// What to do; without a command, `serve`.
+    #[command(subcommand)]
+    pub command: Option<Command>,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Render a scene to a PNG.
+    Render(local::RenderArgs),
+    /// Write per-pixel hit data (JSON, NDJSON or NPY, by the output's extension).
+    Hits(local::HitsArgs),
+    /// Check a scene and list every problem with its JSON pointer.
+    Validate(local::ValidateArgs),
+}
+
+/// Options shared by the commands that trace.
+#[derive(Debug, Clone, clap::Args)]
+pub struct TraceOptions {
+    /// The scene file (JSON); `-` reads standard input.
+    pub scene: PathBuf,
+    /// Rayon worker threads (default: one per core).
+    #[arg(long, env = "RAYTILE_THREADS")]
+    pub threads: Option<usize>,
+    /// Tile edge in pixels.
+    #[arg(long, default_value_t = crate::render::DEFAULT_TILE_PX, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub tile: u32,
+    /// Only this rectangle of the frame: `x,y,w,h` in pixels.
+    #[arg(long, value_parser = parse_region)]
+    pub region: Option<Rect>,
+    /// Print one JSON line of phase timings to standard error.
+    #[arg(long)]
+    pub stats: bool,
+}
+
+/// Parses `x,y,w,h`.
+pub fn parse_region(s: &str) -> Result<Rect, String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    let [x, y, w, h] = parts.as_slice() else {
+        return Err(format!("expected x,y,w,h (four whole numbers), got `{s}`"));
+    };
+    let n = |t: &str| {
+        t.parse::<u32>()
+            .map_err(|_| format!("`{t}` is not a whole number ≥ 0"))
+    };
+    let r = Rect {
+        x: n(x)?,
+        y: n(y)?,
+        width: n(w)?,
+        height: n(h)?,
+    };
+    if r.width == 0 || r.height == 0 {
+        return Err("the region's width and height must be at least 1".into());
+    }
+    Ok(r)
+}
+
+/// Runs the command line; the exit code on success.
+pub fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
+    match cli.command {
+        Some(Command::Render(a)) => local::render(a),
+        Some(Command::Hits(a)) => local::hits(a),
+        Some(Command::Validate(a)) => local::validate(a),
+        None => anyhow::bail!("no command given: try `raytile --help`"),
+    }
+}

@@ -1,0 +1,17 @@
+//! Geometry exactly as the course teaches it (SPEC §2): rays with unnormalised
+//! directions, affine transforms with their inverses, the canonical shapes, bounding
+//! boxes, the BVH, and the world that finds a ray's first hit.
+
+pub mod bounds;
+pub mod bvh;
+pub mod hit;
+pub mod ray;
+pub mod shapes;
+pub mod transform;
+pub mod world;
+
+pub use hit::{Face, Hit, Probe, Surface};
+pub use ray::Ray;
+pub use shapes::{MeshData, Shape};
+pub use transform::Transform;
+pub use world::World;

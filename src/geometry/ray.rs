@@ -1,0 +1,43 @@
+//! Rays `p(λ) = origin + λ · dir` with an unnormalised direction.
+//!
+//! `λ` is the lecture's parameter: for a primary ray it is measured along the `d` of
+//! SPEC §2.1, which is not unit length. Affine maps carry a ray without changing `λ`.
+
+use glam::{DAffine3, DVec3};
+
+/// A ray: an origin (a point) and a direction (not normalised).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ray {
+    /// Where the ray starts (homogeneous w = 1).
+    pub origin: DVec3,
+    /// Where it goes per unit `λ` (homogeneous w = 0).
+    pub dir: DVec3,
+}
+
+impl Ray {
+    /// A ray from `origin` along `dir`.
+    pub fn new(origin: DVec3, dir: DVec3) -> Self {
+        Self { origin, dir }
+    }
+
+    /// The point at parameter `lambda`.
+    #[inline]
+    pub fn at(&self, lambda: f64) -> DVec3 {
+        self.origin + lambda * self.dir
+    }
+
+    /// The ray carried by an affine map: the origin as a point, the direction as a vector.
+    #[inline]
+    pub fn transformed(&self, m: &DAffine3) -> Ray {
+        Ray {
+            origin: m.transform_point3(self.origin),
+            dir: m.transform_vector3(self.dir),
+        }
+    }
+}
+
+/// The smallest `λ` a primary ray's hit may have: in front of the projection point (SPEC §2.4).
+pub const PRIMARY_LAMBDA_MIN: f64 = 1e-9;
+
+/// Below this `|Δ|` a ray is parallel to a face and the face is skipped (SPEC §2.2).
+pub const PARALLEL_EPSILON: f64 = 1e-12;

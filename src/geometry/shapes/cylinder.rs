@@ -1,0 +1,69 @@
+//! The closed cylinder `x² + z² = 1, −1 ≤ y ≤ 1` with caps at `y = ±1`.
+//!
+//! Parts: 0 the side, 1 the top cap (`y = +1`), 2 the bottom cap (`y = −1`).
+
+use glam::DVec3;
+
+use super::{plane::intersect_y0, solve_quadratic};
+use crate::geometry::{hit::Probe, ray::Ray};
+
+/// The side is `a λ² + b λ + c = 0` with `a = Δx² + Δz²`, `b = 2(x₀Δx + z₀Δz)`,
+/// `c = x₀² + z₀² − 1`, valid where `−1 ≤ y ≤ 1`; the caps are disks at `y = ±1`.
+#[inline]
+pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> Option<(f64, u32)> {
+    let (o, d) = (ray.origin, ray.dir);
+    let a = d.x * d.x + d.z * d.z;
+    let b = 2.0 * (o.x * d.x + o.z * d.z);
+    let c = o.x * o.x + o.z * o.z - 1.0;
+    let mut best: Option<(f64, u32)> = None;
+    let mut limit = t_max;
+    for t in solve_quadratic("side", a, b, c, probe)
+        .into_iter()
+        .flatten()
+    {
+        let y = o.y + t * d.y;
+        if (-1.0..=1.0).contains(&y) && t > t_min && t < limit {
+            best = Some((t, 0));
+            limit = t;
+        }
+    }
+    for (part, (label, h)) in [("top", 1.0), ("bottom", -1.0)].into_iter().enumerate() {
+        if let Some(t) = intersect_y0(label, ray, h, 1.0, t_min, limit, probe) {
+            best = Some((t, part as u32 + 1));
+            limit = t;
+        }
+    }
+    best
+}
+
+/// The outward normal at an object-space point of a part.
+pub fn normal(p: DVec3, part: u32) -> DVec3 {
+    match part {
+        1 => DVec3::Y,
+        2 => DVec3::NEG_Y,
+        _ => DVec3::new(p.x, 0.0, p.z),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hit(o: [f64; 3], d: [f64; 3]) -> Option<(f64, u32)> {
+        intersect(&Ray::new(o.into(), d.into()), 1e-9, f64::INFINITY, &mut ())
+    }
+
+    #[test]
+    fn side_cap_and_miss() {
+        assert_eq!(hit([0.0, 0.0, -3.0], [0.0, 0.0, 1.0]), Some((2.0, 0)));
+        assert_eq!(hit([0.0, 3.0, 0.0], [0.0, -1.0, 0.0]), Some((2.0, 1)));
+        assert_eq!(hit([0.0, -3.0, 0.5], [0.0, 1.0, 0.0]), Some((2.0, 2)));
+        assert_eq!(hit([0.0, 1.5, -3.0], [0.0, 0.0, 1.0]), None);
+    }
+
+    #[test]
+    fn from_inside_leaves_through_side() {
+        assert_eq!(hit([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]), Some((1.0, 0)));
+        assert_eq!(normal(DVec3::new(1.0, 0.0, 0.0), 0), DVec3::X);
+    }
+}

@@ -1,0 +1,222 @@
+//! Triangle meshes given inline in object space, with their own BVH over triangles.
+//!
+//! The ray is tested with Möller–Trumbore in object space, edges included; a triangle
+//! whose determinant is exactly zero (the ray lies in its plane, or it has no area) is
+//! not hit. The normal is the triangle's geometric normal `(v₁ − v₀) × (v₂ − v₀)`.
+
+use std::sync::Arc;
+
+use glam::DVec3;
+
+use crate::geometry::{
+    bounds::{Aabb, SlabRay},
+    bvh::Bvh,
+    hit::{Probe, TriangleTest},
+    ray::Ray,
+};
+
+/// A mesh as the scene gives it.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MeshData {
+    /// Vertex positions.
+    pub positions: Vec<DVec3>,
+    /// Triangles as vertex indices (validated to be in range).
+    pub indices: Vec<[u32; 3]>,
+}
+
+impl MeshData {
+    /// The corners of triangle `i`.
+    pub fn corners(&self, i: usize) -> [DVec3; 3] {
+        let [a, b, c] = self.indices[i];
+        [
+            self.positions[a as usize],
+            self.positions[b as usize],
+            self.positions[c as usize],
+        ]
+    }
+
+    /// The object-space bounds of its vertices that some triangle uses.
+    pub fn bounds(&self) -> Aabb {
+        self.indices
+            .iter()
+            .flatten()
+            .fold(Aabb::EMPTY, |b, &i| b.grow(self.positions[i as usize]))
+    }
+}
+
+/// A triangle prepared for Möller–Trumbore.
+#[derive(Debug, Clone, Copy)]
+struct Tri {
+    v0: DVec3,
+    e1: DVec3,
+    e2: DVec3,
+}
+
+/// A mesh ready to trace: triangles in BVH leaf order.
+#[derive(Debug, Clone)]
+pub struct MeshAccel {
+    tris: Vec<Tri>,
+    /// For each entry of `tris`, the triangle's index in the scene's `indices`.
+    ids: Vec<u32>,
+    bvh: Bvh,
+    mesh: Arc<MeshData>,
+}
+
+impl MeshAccel {
+    /// Builds the triangle BVH.
+    pub fn new(mesh: &Arc<MeshData>) -> MeshAccel {
+        let bounds: Vec<Aabb> = (0..mesh.indices.len())
+            .map(|i| {
+                let [a, b, c] = mesh.corners(i);
+                Aabb::EMPTY.grow(a).grow(b).grow(c)
+            })
+            .collect();
+        let bvh = Bvh::build(&bounds);
+        // The BVH's leaves name triangles in scene order; store them in leaf order so a
+        // leaf's triangles sit together in memory, and remap the leaves to positions.
+        let order = bvh.order().to_vec();
+        let mut tris = Vec::with_capacity(order.len());
+        let mut ids = Vec::with_capacity(order.len());
+        for &i in &order {
+            let [v0, v1, v2] = mesh.corners(i as usize);
+            tris.push(Tri {
+                v0,
+                e1: v1 - v0,
+                e2: v2 - v0,
+            });
+            ids.push(i);
+        }
+        MeshAccel {
+            tris,
+            ids,
+            bvh: bvh.into_leaf_order(),
+            mesh: mesh.clone(),
+        }
+    }
+
+    /// The object-space bounds.
+    pub fn bounds(&self) -> Aabb {
+        self.bvh.bounds()
+    }
+
+    /// The closest triangle hit in `(t_min, t_max)`: `λ` and the triangle's index.
+    #[inline]
+    pub fn intersect<P: Probe>(
+        &self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        probe: &mut P,
+    ) -> Option<(f64, u32)> {
+        let slab = SlabRay::new(ray.origin, ray.dir);
+        let mut best: Option<(f64, u32)> = None;
+        self.bvh.closest(&slab, t_min, t_max, |k, limit| {
+            let id = self.ids[k as usize];
+            let hit = moller_trumbore(&self.tris[k as usize], ray, t_min, limit, id, probe);
+            match hit {
+                // A tie goes to the triangle listed first.
+                Some(t) if t < limit || best.is_some_and(|(bt, bid)| t == bt && id < bid) => {
+                    best = Some((t, id));
+                    t
+                }
+                _ => limit,
+            }
+        });
+        best
+    }
+
+    /// Whether any triangle is hit in `(t_min, t_max)`.
+    #[inline]
+    pub fn occludes(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
+        let slab = SlabRay::new(ray.origin, ray.dir);
+        self.bvh.any(&slab, t_min, t_max, |k| {
+            moller_trumbore(&self.tris[k as usize], ray, t_min, t_max, 0, &mut ()).is_some()
+        })
+    }
+
+    /// The object-space geometric normal of triangle `id` (scene order).
+    pub fn normal(&self, id: u32) -> DVec3 {
+        let [a, b, c] = self.mesh.corners(id as usize);
+        (b - a).cross(c - a)
+    }
+}
+
+#[inline(always)]
+fn moller_trumbore<P: Probe>(
+    tri: &Tri,
+    ray: &Ray,
+    t_min: f64,
+    t_max: f64,
+    id: u32,
+    probe: &mut P,
+) -> Option<f64> {
+    let p = ray.dir.cross(tri.e2);
+    let det = tri.e1.dot(p);
+    if det == 0.0 {
+        if probe.active() {
+            probe.triangle(&TriangleTest {
+                triangle: id,
+                uvt: None,
+                hit: false,
+            });
+        }
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = ray.origin - tri.v0;
+    let u = s.dot(p) * inv;
+    let q = s.cross(tri.e1);
+    let v = ray.dir.dot(q) * inv;
+    let t = tri.e2.dot(q) * inv;
+    let hit = u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t > t_min && t <= t_max;
+    if probe.active() {
+        probe.triangle(&TriangleTest {
+            triangle: id,
+            uvt: Some([u, v, t]),
+            hit,
+        });
+    }
+    hit.then_some(t)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn quad() -> MeshData {
+        // Two triangles making the square [-1,1]² in the z = 0 plane.
+        MeshData {
+            positions: vec![
+                DVec3::new(-1.0, -1.0, 0.0),
+                DVec3::new(1.0, -1.0, 0.0),
+                DVec3::new(1.0, 1.0, 0.0),
+                DVec3::new(-1.0, 1.0, 0.0),
+            ],
+            indices: vec![[0, 1, 2], [0, 2, 3]],
+        }
+    }
+
+    #[test]
+    fn hits_each_triangle_and_the_shared_edge() {
+        let m = MeshAccel::new(&Arc::new(quad()));
+        let at = |x: f64, y: f64| {
+            m.intersect(
+                &Ray::new(DVec3::new(x, y, -2.0), DVec3::Z),
+                1e-9,
+                f64::INFINITY,
+                &mut (),
+            )
+        };
+        assert_eq!(at(0.5, -0.5), Some((2.0, 0)));
+        assert_eq!(at(-0.5, 0.5), Some((2.0, 1)));
+        // On the diagonal both triangles are hit at the same λ: the first listed wins.
+        assert_eq!(at(0.25, 0.25), Some((2.0, 0)));
+        assert_eq!(at(1.5, 0.0), None);
+    }
+
+    #[test]
+    fn normal_follows_winding() {
+        let m = MeshAccel::new(&Arc::new(quad()));
+        assert_eq!(m.normal(0).normalize(), DVec3::Z);
+    }
+}

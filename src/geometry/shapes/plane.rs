@@ -1,0 +1,74 @@
+//! The infinite plane `y = 0` with normal `(0, 1, 0)`.
+
+use glam::DVec3;
+
+use crate::geometry::{
+    hit::{FaceTest, Probe},
+    ray::{PARALLEL_EPSILON, Ray},
+};
+
+/// `λ = (0 − y₀)/Δy`, skipped when `|Δy| < 1e-12`. `radius2` bounds `x² + z²` (a disk);
+/// `f64::INFINITY` gives the plane.
+#[inline]
+pub(crate) fn intersect_y0<P: Probe>(
+    label: &'static str,
+    ray: &Ray,
+    height: f64,
+    radius2: f64,
+    t_min: f64,
+    t_max: f64,
+    probe: &mut P,
+) -> Option<f64> {
+    if ray.dir.y.abs() < PARALLEL_EPSILON {
+        if probe.active() {
+            probe.face(&FaceTest {
+                face: label,
+                lambda: None,
+                point: None,
+                within: false,
+            });
+        }
+        return None;
+    }
+    let t = (height - ray.origin.y) / ray.dir.y;
+    let x = ray.origin.x + t * ray.dir.x;
+    let z = ray.origin.z + t * ray.dir.z;
+    let within = radius2 == f64::INFINITY || x * x + z * z <= radius2;
+    if probe.active() {
+        probe.face(&FaceTest {
+            face: label,
+            lambda: Some(t),
+            point: Some(DVec3::new(x, height, z)),
+            within,
+        });
+    }
+    (within && t > t_min && t < t_max).then_some(t)
+}
+
+/// The plane's hit `λ` in `(t_min, t_max)`.
+#[inline]
+pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> Option<f64> {
+    intersect_y0("plane", ray, 0.0, f64::INFINITY, t_min, t_max, probe)
+}
+
+/// The geometric normal, before it is turned to face the ray.
+pub const NORMAL: DVec3 = DVec3::Y;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn from_above_and_below() {
+        let down = Ray::new(DVec3::new(3.0, 2.0, 7.0), DVec3::new(0.0, -1.0, 0.0));
+        assert_eq!(intersect(&down, 1e-9, f64::INFINITY, &mut ()), Some(2.0));
+        let up = Ray::new(DVec3::new(0.0, -4.0, 0.0), DVec3::new(1.0, 2.0, 0.0));
+        assert_eq!(intersect(&up, 1e-9, f64::INFINITY, &mut ()), Some(2.0));
+    }
+
+    #[test]
+    fn parallel_ray_misses() {
+        let r = Ray::new(DVec3::new(0.0, 1.0, 0.0), DVec3::new(1.0, 1e-13, 0.0));
+        assert_eq!(intersect(&r, 1e-9, f64::INFINITY, &mut ()), None);
+    }
+}

@@ -1,0 +1,77 @@
+//! The unit sphere at the origin, `p · p = 1` (the lecture's shape).
+
+use glam::DVec3;
+
+use super::solve_quadratic;
+use crate::geometry::{hit::Probe, ray::Ray};
+
+/// The smallest root of `a λ² + b λ + c = 0` in `(t_min, t_max)`, with
+/// `a = d·d`, `b = 2 p₀·d`, `c = p₀·p₀ − 1`.
+#[inline]
+pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> Option<f64> {
+    let a = ray.dir.dot(ray.dir);
+    let b = 2.0 * ray.origin.dot(ray.dir);
+    let c = ray.origin.dot(ray.origin) - 1.0;
+    first_root(a, b, c, t_min, t_max, probe)
+}
+
+/// As [`intersect`] with `c = p₀·p₀ − 1` already known (rays sharing an origin).
+#[inline]
+pub fn intersect_with_c(ray: &Ray, c: f64, t_min: f64, t_max: f64) -> Option<f64> {
+    let a = ray.dir.dot(ray.dir);
+    let b = 2.0 * ray.origin.dot(ray.dir);
+    first_root(a, b, c, t_min, t_max, &mut ())
+}
+
+#[inline(always)]
+fn first_root<P: Probe>(
+    a: f64,
+    b: f64,
+    c: f64,
+    t_min: f64,
+    t_max: f64,
+    probe: &mut P,
+) -> Option<f64> {
+    solve_quadratic("sphere", a, b, c, probe)
+        .into_iter()
+        .flatten()
+        .find(|&t| t > t_min && t < t_max)
+}
+
+/// The outward normal at an object-space point: the point itself.
+#[inline]
+pub fn normal(p: DVec3) -> DVec3 {
+    p
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lecture_tangent_hit() {
+        // Pixel (2, 2) of the lecture: [-1,0,-2] + λ[0,0,1] grazes at λ = 2.
+        let r = Ray::new(DVec3::new(-1.0, 0.0, -2.0), DVec3::Z);
+        assert_eq!(intersect(&r, 1e-9, f64::INFINITY, &mut ()), Some(2.0));
+    }
+
+    #[test]
+    fn two_roots_take_the_nearer_in_front() {
+        let r = Ray::new(DVec3::new(0.0, 0.0, -3.0), DVec3::new(0.0, 0.0, 2.0));
+        assert_eq!(intersect(&r, 1e-9, f64::INFINITY, &mut ()), Some(1.0));
+    }
+
+    #[test]
+    fn from_inside_takes_the_far_root() {
+        let r = Ray::new(DVec3::ZERO, DVec3::X);
+        assert_eq!(intersect(&r, 1e-9, f64::INFINITY, &mut ()), Some(1.0));
+    }
+
+    #[test]
+    fn behind_and_missing_rays() {
+        let behind = Ray::new(DVec3::new(0.0, 0.0, 3.0), DVec3::Z);
+        assert_eq!(intersect(&behind, 1e-9, f64::INFINITY, &mut ()), None);
+        let miss = Ray::new(DVec3::new(0.0, 1.5, -3.0), DVec3::Z);
+        assert_eq!(intersect(&miss, 1e-9, f64::INFINITY, &mut ()), None);
+    }
+}

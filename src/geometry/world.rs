@@ -1,0 +1,285 @@
+//! The traceable world: every object prepared for intersection, a BVH over the bounded
+//! ones, and the unbounded ones (planes) kept aside and tested for every ray.
+//!
+//! `closest` finds the first hit with the cheap record only; `surface` then computes
+//! the point, object point, normal and face of that one hit.
+
+use std::sync::Arc;
+
+use glam::{DAffine3, DVec3};
+
+use super::{
+    bounds::{Aabb, SlabRay},
+    bvh::Bvh,
+    hit::{Hit, Probe, Surface},
+    ray::Ray,
+    shapes::{Shape, cone, cube, cylinder, disk, mesh::MeshAccel, plane, sphere},
+    transform::Transform,
+};
+
+/// A shape prepared to trace.
+#[derive(Debug, Clone)]
+enum Kind {
+    Sphere,
+    Cube,
+    Plane,
+    Disk,
+    Cylinder,
+    Cone,
+    Mesh(Box<MeshAccel>),
+}
+
+/// One object ready to trace.
+#[derive(Debug, Clone)]
+struct Solid {
+    kind: Kind,
+    /// `object_from_world`, the map every ray takes into object space.
+    object_from_world: DAffine3,
+    world_from_object: Transform,
+    closed: bool,
+}
+
+/// The objects of a scene, prepared and indexed.
+#[derive(Debug, Clone)]
+pub struct World {
+    solids: Vec<Solid>,
+    bvh: Bvh,
+    /// Objects without bounds (planes), in scene order.
+    unbounded: Vec<u32>,
+}
+
+impl World {
+    /// Prepares `(shape, world_from_object)` pairs, in scene order, and builds the BVH.
+    pub fn new<'a>(objects: impl IntoIterator<Item = (&'a Shape, &'a Transform)>) -> World {
+        let mut solids = Vec::new();
+        let mut bounds = Vec::new();
+        let mut unbounded = Vec::new();
+        for (i, (shape, t)) in objects.into_iter().enumerate() {
+            let (kind, object_bounds) = match shape {
+                Shape::Sphere => (Kind::Sphere, Some(Aabb::CANONICAL)),
+                Shape::Cube => (Kind::Cube, Some(Aabb::CANONICAL)),
+                Shape::Plane => (Kind::Plane, None),
+                Shape::Disk => (
+                    Kind::Disk,
+                    Some(Aabb {
+                        min: DVec3::new(-1.0, 0.0, -1.0),
+                        max: DVec3::new(1.0, 0.0, 1.0),
+                    }),
+                ),
+                Shape::Cylinder => (Kind::Cylinder, Some(Aabb::CANONICAL)),
+                Shape::Cone => (Kind::Cone, Some(Aabb::CANONICAL)),
+                Shape::Mesh(m) => {
+                    let accel = MeshAccel::new(m);
+                    let b = accel.bounds();
+                    (Kind::Mesh(Box::new(accel)), Some(b))
+                }
+            };
+            let world_bounds = match (&kind, object_bounds) {
+                // A transformed sphere is an ellipsoid whose exact extent along axis i
+                // is the length of row i of the 3 × 3 part.
+                (Kind::Sphere, _) => {
+                    let m = t.forward.matrix3;
+                    let r = DVec3::new(m.row(0).length(), m.row(1).length(), m.row(2).length());
+                    Some(Aabb {
+                        min: t.forward.translation - r,
+                        max: t.forward.translation + r,
+                    })
+                }
+                (Kind::Mesh(_), Some(b)) => {
+                    Some(mesh_world_bounds(shape, t).unwrap_or(b.transformed(&t.forward)))
+                }
+                (_, b) => b.map(|b| b.transformed(&t.forward)),
+            };
+            match world_bounds {
+                Some(b) => bounds.push(b),
+                None => {
+                    bounds.push(Aabb::EMPTY);
+                    unbounded.push(i as u32);
+                }
+            }
+            solids.push(Solid {
+                kind,
+                object_from_world: t.inverse,
+                world_from_object: *t,
+                closed: shape.is_closed(),
+            });
+        }
+        World {
+            bvh: Bvh::build(&bounds),
+            solids,
+            unbounded,
+        }
+    }
+
+    /// Number of objects.
+    pub fn len(&self) -> usize {
+        self.solids.len()
+    }
+
+    /// Whether there are no objects.
+    pub fn is_empty(&self) -> bool {
+        self.solids.is_empty()
+    }
+
+    /// Tests object `i` alone: `λ` in `(t_min, t_max)` and the part hit.
+    #[inline]
+    pub fn intersect_object<P: Probe>(
+        &self,
+        i: u32,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        probe: &mut P,
+    ) -> Option<(f64, u32)> {
+        let s = &self.solids[i as usize];
+        let r = ray.transformed(&s.object_from_world);
+        if probe.active() {
+            probe.object(i, &r);
+        }
+        match &s.kind {
+            Kind::Sphere => sphere::intersect(&r, t_min, t_max, probe).map(|t| (t, 0)),
+            Kind::Cube => cube::intersect(&r, t_min, t_max, probe),
+            Kind::Plane => plane::intersect(&r, t_min, t_max, probe).map(|t| (t, 0)),
+            Kind::Disk => disk::intersect(&r, t_min, t_max, probe).map(|t| (t, 0)),
+            Kind::Cylinder => cylinder::intersect(&r, t_min, t_max, probe),
+            Kind::Cone => cone::intersect(&r, t_min, t_max, probe),
+            Kind::Mesh(m) => m.intersect(&r, t_min, t_max, probe),
+        }
+    }
+
+    /// The first hit in `(t_min, t_max)`; ties go to the object listed first.
+    #[inline]
+    pub fn closest(&self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
+        self.closest_probed(ray, t_min, t_max, &mut ())
+    }
+
+    /// [`World::closest`], reporting every test to `probe`.
+    #[inline]
+    pub fn closest_probed<P: Probe>(
+        &self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        probe: &mut P,
+    ) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        let mut consider = |i: u32, limit: f64, probe: &mut P| -> f64 {
+            // `next_up` lets an equal λ through, so the tie rule can see it.
+            if let Some((lambda, part)) =
+                self.intersect_object(i, ray, t_min, limit.next_up(), probe)
+            {
+                let h = Hit {
+                    lambda,
+                    object: i,
+                    part,
+                };
+                if lambda < limit || best.is_some_and(|b| h.before(&b)) {
+                    best = Some(h);
+                    return lambda;
+                }
+            }
+            limit
+        };
+        let mut limit = t_max;
+        for &i in &self.unbounded {
+            limit = consider(i, limit, probe);
+        }
+        let slab = SlabRay::new(ray.origin, ray.dir);
+        self.bvh
+            .closest(&slab, t_min, limit, |i, limit| consider(i, limit, probe));
+        best
+    }
+
+    /// Whether anything is hit in `(t_min, t_max)` (shadow rays).
+    #[inline]
+    pub fn occluded(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
+        let test = |i: u32| {
+            let s = &self.solids[i as usize];
+            match &s.kind {
+                Kind::Mesh(m) => m.occludes(&ray.transformed(&s.object_from_world), t_min, t_max),
+                _ => self
+                    .intersect_object(i, ray, t_min, t_max, &mut ())
+                    .is_some(),
+            }
+        };
+        self.unbounded.iter().any(|&i| test(i))
+            || self
+                .bvh
+                .any(&SlabRay::new(ray.origin, ray.dir), t_min, t_max, test)
+    }
+
+    /// The first hit found by testing every object in order, without the BVH: the
+    /// reference the BVH is checked against.
+    pub fn closest_brute_force(&self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        for i in 0..self.solids.len() as u32 {
+            let limit = best.map_or(t_max, |b| b.lambda);
+            if let Some((lambda, part)) = self.intersect_object(i, ray, t_min, limit, &mut ()) {
+                best = Some(Hit {
+                    lambda,
+                    object: i,
+                    part,
+                });
+            }
+        }
+        best
+    }
+
+    /// Objects whose bounds the ray enters, in the order the BVH visits them, then the
+    /// unbounded ones: the candidates of a pixel's explanation.
+    pub fn candidates(&self, ray: &Ray, t_min: f64, t_max: f64) -> Vec<u32> {
+        let mut c = self
+            .bvh
+            .candidates(&SlabRay::new(ray.origin, ray.dir), t_min, t_max);
+        c.extend_from_slice(&self.unbounded);
+        c.sort_unstable();
+        c
+    }
+
+    /// The full record of a hit found on `ray`.
+    pub fn surface(&self, ray: &Ray, hit: &Hit) -> Surface {
+        let s = &self.solids[hit.object as usize];
+        let r = ray.transformed(&s.object_from_world);
+        let object_point = r.at(hit.lambda);
+        let (n_object, face) = match &s.kind {
+            Kind::Sphere => (sphere::normal(object_point), None),
+            Kind::Cube => (cube::normal(hit.part), Some(cube::face(hit.part))),
+            Kind::Plane | Kind::Disk => (plane::NORMAL, None),
+            Kind::Cylinder => (cylinder::normal(object_point, hit.part), None),
+            Kind::Cone => (cone::normal(object_point, hit.part), None),
+            Kind::Mesh(m) => (m.normal(hit.part), None),
+        };
+        let mut normal = s.world_from_object.normal(n_object);
+        let front = normal.dot(ray.dir) < 0.0;
+        if !s.closed && !front {
+            normal = -normal;
+        }
+        Surface {
+            lambda: hit.lambda,
+            object: hit.object,
+            point: ray.at(hit.lambda),
+            object_point,
+            normal,
+            front,
+            face,
+        }
+    }
+
+    /// The `world_from_object` transform of object `i`.
+    pub fn transform(&self, i: u32) -> &Transform {
+        &self.solids[i as usize].world_from_object
+    }
+}
+
+/// A mesh's world bounds from its transformed vertices (tighter than its box's corners).
+fn mesh_world_bounds(shape: &Shape, t: &Transform) -> Option<Aabb> {
+    match shape {
+        Shape::Mesh(m) => Some(m.indices.iter().flatten().fold(Aabb::EMPTY, |b, &i| {
+            b.grow(t.forward.transform_point3(m.positions[i as usize]))
+        })),
+        _ => None,
+    }
+}
+
+/// A shared handle, as renders hold it.
+pub type SharedWorld = Arc<World>;

@@ -1,0 +1,105 @@
+//! Rendering: the camera's primary rays, Whitted shading, and the tile loop that traces
+//! them on rayon. [`Renderer`] holds a scene prepared for tracing; its two kernels say
+//! what a pixel reports: a colour ([`ColourKernel`]) or its first hit ([`HitKernel`]).
+
+pub mod camera;
+pub mod shade;
+pub mod tiles;
+
+use std::sync::Arc;
+
+use glam::DVec3;
+
+use crate::geometry::{Surface, World, ray::PRIMARY_LAMBDA_MIN};
+use crate::scene::Scene;
+pub use camera::PrimaryRays;
+pub use shade::{RayCount, Shader, quantise};
+pub use tiles::{
+    Cancel, DEFAULT_TILE_PX, Kernel, Rect, RenderStats, SinkClosed, Stopped, Tile, TileSink, run,
+};
+
+/// A scene prepared for tracing: its acceleration structure and camera.
+#[derive(Debug, Clone)]
+pub struct Renderer {
+    /// The scene.
+    pub scene: Arc<Scene>,
+    /// Its objects, indexed.
+    pub world: World,
+    /// Its camera.
+    pub camera: PrimaryRays,
+}
+
+impl Renderer {
+    /// Builds the acceleration structure (the "build" phase).
+    pub fn new(scene: Arc<Scene>) -> Renderer {
+        let world = scene.world();
+        let camera = PrimaryRays::new(&scene);
+        Renderer {
+            scene,
+            world,
+            camera,
+        }
+    }
+
+    /// The full frame.
+    pub fn frame(&self) -> Rect {
+        Rect::frame(self.scene.width, self.scene.height)
+    }
+
+    /// The linear colour of pixel `(u, v)`: the mean of its `s × s` samples.
+    pub fn pixel_colour(&self, u: u32, v: u32, rays: &mut RayCount) -> DVec3 {
+        let shader = Shader {
+            scene: &self.scene,
+            world: &self.world,
+        };
+        let s = self.scene.samples;
+        if s == 1 {
+            return shader.trace(&self.camera.pixel_centre(u, v), 0, PRIMARY_LAMBDA_MIN, rays);
+        }
+        let sf = s as f64;
+        let mut sum = DVec3::ZERO;
+        for j in 0..s {
+            for i in 0..s {
+                let x = u as f64 + (i as f64 + 0.5) / sf;
+                let y = v as f64 + (j as f64 + 0.5) / sf;
+                sum += shader.trace(&self.camera.through(x, y), 0, PRIMARY_LAMBDA_MIN, rays);
+            }
+        }
+        sum / (sf * sf)
+    }
+
+    /// The first hit of pixel `(u, v)`'s centre ray.
+    #[inline]
+    pub fn pixel_hit(&self, u: u32, v: u32) -> Option<Surface> {
+        let ray = self.camera.pixel_centre(u, v);
+        self.world
+            .closest(&ray, PRIMARY_LAMBDA_MIN, f64::INFINITY)
+            .map(|h| self.world.surface(&ray, &h))
+    }
+}
+
+/// Reports each pixel's 8-bit RGB colour.
+pub struct ColourKernel<'a>(pub &'a Renderer);
+
+impl Kernel for ColourKernel<'_> {
+    type Pixel = [u8; 3];
+    #[inline]
+    fn pixel(&self, u: u32, v: u32, rays: &mut u64) -> [u8; 3] {
+        let mut n = RayCount(0);
+        let c = self.0.pixel_colour(u, v, &mut n);
+        *rays += n.0;
+        quantise(c, self.0.scene.gamma)
+    }
+}
+
+/// Reports each pixel's first hit (SPEC §5).
+pub struct HitKernel<'a>(pub &'a Renderer);
+
+impl Kernel for HitKernel<'_> {
+    type Pixel = Option<Surface>;
+    #[inline]
+    fn pixel(&self, u: u32, v: u32, rays: &mut u64) -> Option<Surface> {
+        *rays += 1;
+        self.0.pixel_hit(u, v)
+    }
+}

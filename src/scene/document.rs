@@ -1,0 +1,337 @@
+//! The scene document as it travels: serde types that *are* the wire format (SPEC §4).
+//!
+//! Strict: every struct refuses unknown fields, and `colour` may also be spelled
+//! `color`. These types say only what was written; [`super::validate`] checks what it
+//! means and turns it into a [`super::Scene`].
+//!
+//! ```json
+//! { "version": 1, "image": { "width": 5, "height": 5 },
+//!   "objects": [ { "name": "ball", "shape": "sphere", "transform": [ { "translate": [1, 0, 2] } ] } ],
+//!   "lights": [ { "type": "point", "position": [0, -4, 0], "colour": [1, 1, 1] } ] }
+//! ```
+
+use std::collections::BTreeMap;
+use std::fmt;
+
+use serde::de::{self, MapAccess, Visitor};
+use serde::{Deserialize, Deserializer, Serialize};
+
+/// `[x, y, z]`.
+pub type Vec3 = [f64; 3];
+/// Linear RGB, each channel non-negative.
+pub type Colour = [f64; 3];
+
+/// The whole document.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneDoc {
+    /// Format version; only 1 exists.
+    pub version: u32,
+    /// Image size, anti-aliasing and gamma.
+    pub image: ImageDoc,
+    /// The camera; the default looks along +z from the origin with f = 1.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<CameraDoc>,
+    /// Colour of rays that hit nothing (default black).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub background: Option<Colour>,
+    /// Ambient light (default black).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ambient: Option<Colour>,
+    /// Recursion depth of reflection and refraction (default 5).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_depth: Option<u32>,
+    /// Named materials that objects refer to.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub materials: BTreeMap<String, MaterialDoc>,
+    /// The objects, in order (ties go to the earlier one).
+    pub objects: Vec<ObjectDoc>,
+    /// The lights.
+    #[serde(default)]
+    pub lights: Vec<LightDoc>,
+}
+
+/// `image`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImageDoc {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// `s`: `s × s` rays per pixel (default 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub samples: Option<u32>,
+    /// When given, colours are raised to `1/gamma` before quantising.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gamma: Option<f64>,
+}
+
+/// `camera`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraDoc {
+    /// Distance of the image plane (default 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub focal_length: Option<f64>,
+    /// camera → world, as transform steps.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub transform: Option<Vec<StepDoc>>,
+    /// camera → world from an eye, a target and an up vector.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub look_at: Option<LookAtDoc>,
+}
+
+/// `camera.look_at`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LookAtDoc {
+    /// The projection point.
+    pub eye: Vec3,
+    /// A point on the optical axis.
+    pub target: Vec3,
+    /// Which way is up in the image (camera y points along `−up`).
+    pub up: Vec3,
+}
+
+/// One transform step, written as an object with exactly one key.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase", deny_unknown_fields)]
+pub enum StepDoc {
+    /// `{"translate": [x, y, z]}`.
+    Translate(Vec3),
+    /// `{"scale": s}` or `{"scale": [x, y, z]}`.
+    Scale(ScaleDoc),
+    /// `{"rotate": {"axis": "x" | [x, y, z], "degrees": a}}`.
+    Rotate(RotateDoc),
+    /// `{"matrix": [[…], [..], [..], [0, 0, 0, 1]]}`, rows.
+    Matrix([[f64; 4]; 4]),
+}
+
+/// A uniform or per-axis scale.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum ScaleDoc {
+    /// The same factor on every axis.
+    Uniform(f64),
+    /// One factor per axis.
+    Axes(Vec3),
+}
+
+/// A rotation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RotateDoc {
+    /// `"x"`, `"y"`, `"z"` or a vector.
+    pub axis: AxisDoc,
+    /// Angle, right-hand rule.
+    pub degrees: f64,
+}
+
+/// A rotation axis.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum AxisDoc {
+    /// A coordinate axis by name.
+    Named(AxisName),
+    /// Any non-zero vector.
+    Vector(Vec3),
+}
+
+/// `"x"`, `"y"` or `"z"`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AxisName {
+    /// x.
+    X,
+    /// y.
+    Y,
+    /// z.
+    Z,
+}
+
+/// A material; every field optional (SPEC §3 gives the defaults).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialDoc {
+    /// Ambient reflectance (defaults to `diffuse`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ambient: Option<Colour>,
+    /// Diffuse reflectance (default 0.8 grey).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub diffuse: Option<Colour>,
+    /// Specular reflectance (default black).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub specular: Option<Colour>,
+    /// Phong exponent (default 32).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shininess: Option<f64>,
+    /// Mirror reflectance (default black).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mirror: Option<Colour>,
+    /// Transmittance (default black).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub transmission: Option<Colour>,
+    /// Index of refraction (default 1.5).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ior: Option<f64>,
+}
+
+/// A material by name or inline.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum MaterialRefDoc {
+    /// The name of an entry of `materials`.
+    Named(String),
+    /// A material written in place.
+    Inline(MaterialDoc),
+}
+
+/// The shapes of SPEC §2.2.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ShapeName {
+    /// Unit sphere.
+    Sphere,
+    /// `[-1, 1]³`.
+    Cube,
+    /// `y = 0`.
+    Plane,
+    /// `y = 0, x² + z² ≤ 1`.
+    Disk,
+    /// `x² + z² = 1, |y| ≤ 1`, capped.
+    Cylinder,
+    /// Apex `(0, 1, 0)`, base radius 1 at `y = −1`.
+    Cone,
+    /// Inline triangles.
+    Mesh,
+}
+
+/// One object.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObjectDoc {
+    /// A unique name, reported in hit data.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// Which canonical shape.
+    pub shape: ShapeName,
+    /// Its material (default: the default material).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub material: Option<MaterialRefDoc>,
+    /// object → world, applied in the listed order.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub transform: Option<Vec<StepDoc>>,
+    /// Mesh vertices.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub positions: Option<Vec<Vec3>>,
+    /// Mesh triangles, as indices into `positions`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub indices: Option<Vec<[u32; 3]>>,
+}
+
+/// A light.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
+pub enum LightDoc {
+    /// Light from a point.
+    Point {
+        /// Where.
+        position: Vec3,
+        /// Its colour.
+        #[serde(alias = "color")]
+        colour: Colour,
+    },
+    /// Parallel light travelling along `direction`.
+    Directional {
+        /// The direction the light travels.
+        direction: Vec3,
+        /// Its colour.
+        #[serde(alias = "color")]
+        colour: Colour,
+    },
+    /// A point light limited to a cone.
+    Spot {
+        /// Where.
+        position: Vec3,
+        /// The cone's axis.
+        direction: Vec3,
+        /// The cone's half-angle.
+        angle_degrees: f64,
+        /// Its colour.
+        #[serde(alias = "color")]
+        colour: Colour,
+    },
+}
+
+// The untagged enums get hand-written visitors: serde's derived untagged errors say only
+// "did not match any variant", and route inline materials around the path tracker.
+
+impl<'de> Deserialize<'de> for MaterialRefDoc {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = MaterialRefDoc;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a material name or a material object")
+            }
+            fn visit_str<E: de::Error>(self, s: &str) -> Result<Self::Value, E> {
+                Ok(MaterialRefDoc::Named(s.to_owned()))
+            }
+            fn visit_map<A: MapAccess<'de>>(self, map: A) -> Result<Self::Value, A::Error> {
+                MaterialDoc::deserialize(de::value::MapAccessDeserializer::new(map))
+                    .map(MaterialRefDoc::Inline)
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+impl<'de> Deserialize<'de> for ScaleDoc {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = ScaleDoc;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a number or an array of 3 numbers")
+            }
+            fn visit_f64<E: de::Error>(self, v: f64) -> Result<Self::Value, E> {
+                Ok(ScaleDoc::Uniform(v))
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> Result<Self::Value, E> {
+                Ok(ScaleDoc::Uniform(v as f64))
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> Result<Self::Value, E> {
+                Ok(ScaleDoc::Uniform(v as f64))
+            }
+            fn visit_seq<A: de::SeqAccess<'de>>(self, seq: A) -> Result<Self::Value, A::Error> {
+                Vec3::deserialize(de::value::SeqAccessDeserializer::new(seq)).map(ScaleDoc::Axes)
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+impl<'de> Deserialize<'de> for AxisDoc {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = AxisDoc;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("\"x\", \"y\", \"z\" or an array of 3 numbers")
+            }
+            fn visit_str<E: de::Error>(self, s: &str) -> Result<Self::Value, E> {
+                match s {
+                    "x" => Ok(AxisDoc::Named(AxisName::X)),
+                    "y" => Ok(AxisDoc::Named(AxisName::Y)),
+                    "z" => Ok(AxisDoc::Named(AxisName::Z)),
+                    _ => Err(E::invalid_value(de::Unexpected::Str(s), &self)),
+                }
+            }
+            fn visit_seq<A: de::SeqAccess<'de>>(self, seq: A) -> Result<Self::Value, A::Error> {
+                Vec3::deserialize(de::value::SeqAccessDeserializer::new(seq)).map(AxisDoc::Vector)
+            }
+        }
+        d.deserialize_any(V)
+    }
+}

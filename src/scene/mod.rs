@@ -1,0 +1,146 @@
+//! The scene: its JSON document ([`document`]), the checks that turn a document into a
+//! [`Scene`] ([`validate`]), and what is wrong when they fail ([`problem`]).
+//!
+//! Parse, then validate into another type: a `Scene` is always traceable, with every
+//! default filled in, every transform inverted and every material resolved.
+
+pub mod document;
+pub mod limits;
+pub mod problem;
+pub mod validate;
+
+use std::sync::Arc;
+
+use glam::DVec3;
+
+use crate::geometry::{Shape, Transform, World};
+pub use document::SceneDoc;
+pub use limits::Limits;
+pub use problem::{Problem, SceneError};
+pub use validate::{parse, parse_value};
+
+/// A validated scene, ready to trace.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Anti-aliasing: `samples × samples` rays per pixel.
+    pub samples: u32,
+    /// Gamma applied before quantising, if any.
+    pub gamma: Option<f64>,
+    /// The camera.
+    pub camera: Camera,
+    /// Colour of rays that hit nothing.
+    pub background: DVec3,
+    /// Ambient light.
+    pub ambient: DVec3,
+    /// Deepest recursion of reflection and refraction.
+    pub max_depth: u32,
+    /// The objects in document order.
+    pub objects: Vec<Object>,
+    /// Materials, one per distinct use; objects point into this list.
+    pub materials: Vec<Material>,
+    /// The lights.
+    pub lights: Vec<Light>,
+    /// The document as validated, every default made explicit.
+    pub normalised: SceneDoc,
+}
+
+impl Scene {
+    /// Builds the acceleration structure over the objects.
+    pub fn world(&self) -> World {
+        World::new(self.objects.iter().map(|o| (&o.shape, &o.transform)))
+    }
+
+    /// Total triangle count over all meshes.
+    pub fn triangles(&self) -> u64 {
+        self.objects
+            .iter()
+            .map(|o| match &o.shape {
+                Shape::Mesh(m) => m.indices.len() as u64,
+                _ => 0,
+            })
+            .sum()
+    }
+
+    /// The name of object `i`, if it has one.
+    pub fn object_name(&self, i: u32) -> Option<&str> {
+        self.objects.get(i as usize).and_then(|o| o.name.as_deref())
+    }
+}
+
+/// The camera: `world_from_camera` and the focal length.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    /// camera → world.
+    pub world_from_camera: Transform,
+    /// Distance of the image plane `z = f`.
+    pub focal_length: f64,
+}
+
+/// An object: a canonical shape, placed and coloured.
+#[derive(Debug, Clone)]
+pub struct Object {
+    /// Its name, if any.
+    pub name: Option<String>,
+    /// The canonical shape.
+    pub shape: Shape,
+    /// object → world.
+    pub transform: Transform,
+    /// Index into [`Scene::materials`].
+    pub material: u32,
+}
+
+/// A material with every default applied (SPEC §3).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Material {
+    /// Ambient reflectance.
+    pub ambient: DVec3,
+    /// Diffuse reflectance.
+    pub diffuse: DVec3,
+    /// Specular reflectance.
+    pub specular: DVec3,
+    /// Phong exponent.
+    pub shininess: f64,
+    /// Mirror reflectance.
+    pub mirror: DVec3,
+    /// Transmittance.
+    pub transmission: DVec3,
+    /// Index of refraction.
+    pub ior: f64,
+}
+
+/// A light.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Light {
+    /// Light from a point.
+    Point {
+        /// Where.
+        position: DVec3,
+        /// Its colour.
+        colour: DVec3,
+    },
+    /// Parallel light.
+    Directional {
+        /// Unit vector the light travels along.
+        direction: DVec3,
+        /// Its colour.
+        colour: DVec3,
+    },
+    /// A point light within a cone.
+    Spot {
+        /// Where.
+        position: DVec3,
+        /// Unit axis of the cone.
+        direction: DVec3,
+        /// Cosine of the half-angle: points with a smaller cosine are dark.
+        cos_angle: f64,
+        /// Its colour.
+        colour: DVec3,
+    },
+}
+
+/// A scene shared between the threads that trace it.
+pub type SharedScene = Arc<Scene>;
