@@ -1,0 +1,7 @@
+//! The integration tests, one binary. Modules:
+//! - `support`: helpers (the built binary, scene files, temporary outputs);
+//! - `cli`: `raytile render | hits | validate` as a user runs them.
+
+mod support;
+
+mod cli;
