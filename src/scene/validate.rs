@@ -3,7 +3,7 @@
 //! document means. Every problem is reported with its JSON pointer; nothing here panics
 //! on any input.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::sync::Arc;
 
 use glam::{DAffine3, DMat3, DVec3};
@@ -33,11 +33,33 @@ const TOP_LEVEL: [&str; 9] = [
 
 /// Parses and validates a scene from JSON bytes.
 pub fn parse(bytes: &[u8], limits: &Limits) -> Result<Scene, SceneError> {
-    let value: Value = serde_json::from_slice(bytes).map_err(|e| SceneError::Syntax {
+    let syntax = |e: &serde_json::Error| SceneError::Syntax {
         message: strip_position(&e.to_string()),
         line: e.line(),
         column: e.column(),
-    })?;
+    };
+    let mut de = serde_json::Deserializer::from_slice(bytes);
+    let value = match serde_path_to_error::deserialize::<_, Value>(&mut de) {
+        Ok(v) => v,
+        Err(e) => {
+            let at = Pointer::root().join_path(e.path());
+            let inner = e.into_inner();
+            // JSON has no NaN or infinity; a number too large for f64 is the one way to
+            // write a non-finite value, and it is a problem of that field, not of syntax.
+            if inner.to_string().starts_with("number out of range") {
+                return Err(SceneError::Invalid(vec![Problem::new(
+                    at.as_str(),
+                    format!(
+                        "the number at line {}, column {} is out of range: numbers must be finite",
+                        inner.line(),
+                        inner.column()
+                    ),
+                )]));
+            }
+            return Err(syntax(&inner));
+        }
+    };
+    de.end().map_err(|e| syntax(&e))?;
     parse_value(value, limits)
 }
 
@@ -45,7 +67,7 @@ pub fn parse(bytes: &[u8], limits: &Limits) -> Result<Scene, SceneError> {
 pub fn parse_value(value: Value, limits: &Limits) -> Result<Scene, SceneError> {
     let mut p = Problems::default();
     let doc = read_document(value, &mut p);
-    let scene = doc.and_then(|doc| check(doc, limits, &mut p));
+    let scene = doc.and_then(|(doc, failed)| check(doc, &failed, limits, &mut p));
     match scene {
         Some(s) if p.list.is_empty() => Ok(s),
         _ => Err(SceneError::Invalid(p.finish())),
@@ -99,22 +121,40 @@ fn take<T: DeserializeOwned>(v: Value, at: &Pointer, p: &mut Problems) -> Option
     }
 }
 
-fn take_list<T: DeserializeOwned>(v: Value, at: &Pointer, p: &mut Problems) -> Option<Vec<T>> {
+/// Reads each element of a list on its own; a bad element leaves `placeholder` in its
+/// place (so later indices keep their pointers) and its index in `failed`.
+fn take_list<T: DeserializeOwned>(
+    v: Value,
+    at: &Pointer,
+    p: &mut Problems,
+    placeholder: impl Fn() -> T,
+    failed: &mut HashSet<usize>,
+) -> Vec<T> {
     match v {
-        Value::Array(items) => {
-            let n = items.len();
-            let out: Vec<T> = items
-                .into_iter()
-                .enumerate()
-                .filter_map(|(i, v)| take(v, &at.index(i), p))
-                .collect();
-            (out.len() == n).then_some(out)
-        }
-        other => take(other, at, p),
+        Value::Array(items) => items
+            .into_iter()
+            .enumerate()
+            .map(|(i, v)| {
+                take(v, &at.index(i), p).unwrap_or_else(|| {
+                    failed.insert(i);
+                    placeholder()
+                })
+            })
+            .collect(),
+        other => take(other, at, p).unwrap_or_default(),
     }
 }
 
-fn read_document(value: Value, p: &mut Problems) -> Option<SceneDoc> {
+/// The parts of a document that could not be read: their checks are skipped, so that
+/// the problems reported are the real ones and not their consequences.
+#[derive(Default)]
+struct Failed {
+    materials: bool,
+    objects: HashSet<usize>,
+    lights: HashSet<usize>,
+}
+
+fn read_document(value: Value, p: &mut Problems) -> Option<(SceneDoc, Failed)> {
     let root = Pointer::root();
     let Value::Object(mut map) = value else {
         p.add(&root, "a scene must be a JSON object");
@@ -131,78 +171,94 @@ fn read_document(value: Value, p: &mut Problems) -> Option<SceneDoc> {
             );
         }
     }
-    let mut field = |k: &str| map.remove(k);
-    let version = field("version");
-    let image = field("image");
-    let camera = field("camera");
-    let background = field("background");
-    let ambient = field("ambient");
-    let max_depth = field("max_depth");
-    let materials = field("materials");
-    let objects = field("objects");
-    let lights = field("lights");
-    let missing = |p: &mut Problems, k: &str| p.add(&root, format!("missing field `{k}`"));
-
-    let version: Option<u32> = match version {
-        Some(v) => take(v, &root.key("version"), p),
-        None => {
-            missing(p, "version");
-            None
+    let mut failed = Failed::default();
+    let mut required = |p: &mut Problems, k: &str| {
+        let v = map.remove(k);
+        if v.is_none() {
+            p.add(&root, format!("missing field `{k}`"));
         }
+        v
     };
-    let image: Option<ImageDoc> = match image {
-        Some(v) => take(v, &root.key("image"), p),
-        None => {
-            missing(p, "image");
-            None
-        }
-    };
-    let camera: Option<Option<CameraDoc>> =
-        camera.map_or(Some(None), |v| take(v, &root.key("camera"), p).map(Some));
-    let background: Option<Option<Colour>> = background.map_or(Some(None), |v| {
-        take(v, &root.key("background"), p).map(Some)
+    let version = required(p, "version")
+        .and_then(|v| take::<u32>(v, &root.key("version"), p))
+        .unwrap_or(1);
+    let image = required(p, "image").and_then(|v| take::<ImageDoc>(v, &root.key("image"), p));
+    let image = image.unwrap_or(ImageDoc {
+        width: 1,
+        height: 1,
+        samples: None,
+        gamma: None,
     });
-    let ambient: Option<Option<Colour>> =
-        ambient.map_or(Some(None), |v| take(v, &root.key("ambient"), p).map(Some));
-    let max_depth: Option<Option<u32>> =
-        max_depth.map_or(Some(None), |v| take(v, &root.key("max_depth"), p).map(Some));
-    let materials: Option<BTreeMap<String, MaterialDoc>> = match materials {
-        None => Some(BTreeMap::new()),
+    let objects = required(p, "objects");
+    let mut optional = |k: &str| map.remove(k);
+    let camera = optional("camera").and_then(|v| take::<CameraDoc>(v, &root.key("camera"), p));
+    let background =
+        optional("background").and_then(|v| take::<Colour>(v, &root.key("background"), p));
+    let ambient = optional("ambient").and_then(|v| take::<Colour>(v, &root.key("ambient"), p));
+    let max_depth = optional("max_depth").and_then(|v| take::<u32>(v, &root.key("max_depth"), p));
+    let materials = match optional("materials") {
+        None => BTreeMap::new(),
         Some(Value::Object(m)) => {
-            let n = m.len();
             let at = root.key("materials");
-            let out: BTreeMap<_, _> = m
-                .into_iter()
-                .filter_map(|(k, v)| take(v, &at.key(&k), p).map(|m| (k, m)))
-                .collect();
-            (out.len() == n).then_some(out)
+            m.into_iter()
+                .map(|(k, v)| {
+                    let m = take(v, &at.key(&k), p).unwrap_or_else(|| {
+                        failed.materials = true;
+                        MaterialDoc::default()
+                    });
+                    (k, m)
+                })
+                .collect()
         }
-        Some(other) => take(other, &root.key("materials"), p),
-    };
-    let objects: Option<Vec<ObjectDoc>> = match objects {
-        Some(v) => take_list(v, &root.key("objects"), p),
-        None => {
-            missing(p, "objects");
-            None
+        Some(other) => {
+            failed.materials = true;
+            take(other, &root.key("materials"), p).unwrap_or_default()
         }
     };
-    let lights: Option<Vec<LightDoc>> =
-        lights.map_or(Some(Vec::new()), |v| take_list(v, &root.key("lights"), p));
-    Some(SceneDoc {
-        version: version?,
-        image: image?,
-        camera: camera?,
-        background: background?,
-        ambient: ambient?,
-        max_depth: max_depth?,
-        materials: materials?,
-        objects: objects?,
-        lights: lights?,
-    })
+    let lights = optional("lights").map_or_else(Vec::new, |v| {
+        take_list(
+            v,
+            &root.key("lights"),
+            p,
+            || LightDoc::Point {
+                position: [0.0; 3],
+                colour: [0.0; 3],
+            },
+            &mut failed.lights,
+        )
+    });
+    let objects = objects.map_or_else(Vec::new, |v| {
+        take_list(
+            v,
+            &root.key("objects"),
+            p,
+            || ObjectDoc {
+                name: None,
+                shape: ShapeName::Sphere,
+                material: None,
+                transform: None,
+                positions: None,
+                indices: None,
+            },
+            &mut failed.objects,
+        )
+    });
+    let doc = SceneDoc {
+        version,
+        image,
+        camera,
+        background,
+        ambient,
+        max_depth,
+        materials,
+        objects,
+        lights,
+    };
+    Some((doc, failed))
 }
 
 /// Checks what the document means and builds the scene.
-fn check(doc: SceneDoc, limits: &Limits, p: &mut Problems) -> Option<Scene> {
+fn check(doc: SceneDoc, failed: &Failed, limits: &Limits, p: &mut Problems) -> Option<Scene> {
     let root = Pointer::root();
     if doc.version != 1 {
         p.add(
@@ -302,6 +358,9 @@ fn check(doc: SceneDoc, limits: &Limits, p: &mut Problems) -> Option<Scene> {
     let mut objects = Vec::with_capacity(doc.objects.len());
     let mut triangles = 0u64;
     for (i, o) in doc.objects.iter().enumerate() {
+        if failed.objects.contains(&i) {
+            continue;
+        }
         let at = at_objects.index(i);
         if let Some(name) = &o.name
             && let Some(first) = names.insert(name, i)
@@ -319,7 +378,7 @@ fn check(doc: SceneDoc, limits: &Limits, p: &mut Problems) -> Option<Scene> {
             })),
             Some(MaterialRefDoc::Named(n)) => {
                 let found = named.get(n.as_str()).copied();
-                if found.is_none() && !doc.materials.contains_key(n) {
+                if found.is_none() && !doc.materials.contains_key(n) && !failed.materials {
                     p.add(
                         &at.key("material"),
                         format!("no material named `{n}` in /materials"),
@@ -364,6 +423,7 @@ fn check(doc: SceneDoc, limits: &Limits, p: &mut Problems) -> Option<Scene> {
         .lights
         .iter()
         .enumerate()
+        .filter(|(i, _)| !failed.lights.contains(i))
         .filter_map(|(i, l)| light(l, &root.key("lights").index(i), p))
         .collect();
 

@@ -1,7 +1,15 @@
 //! The integration tests, one binary. Modules:
 //! - `support`: helpers (the built binary, scene files, temporary outputs);
-//! - `cli`: `raytile render | hits | validate` as a user runs them.
+//! - `cli`: `raytile render | hits | validate` as a user runs them;
+//! - `geometry`: shapes under transforms against hand-computed answers;
+//! - `lecture`: the lecture's worked example;
+//! - `properties`: BVH against brute force, invariance, determinism, regions;
+//! - `validation`: every class of bad document, with its pointer.
 
 mod support;
 
 mod cli;
+mod geometry;
+mod lecture;
+mod properties;
+mod validation;

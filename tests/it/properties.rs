@@ -1,0 +1,255 @@
+//! Properties that hold for any scene: the BVH finds what testing every object finds;
+//! moving the camera and every object together changes nothing; the output does not
+//! depend on tiles or threads.
+
+use std::sync::Arc;
+
+use glam::DVec3;
+use raytile::geometry::Ray;
+use raytile::render::Renderer;
+use raytile::scene::{Limits, parse};
+use serde_json::{Value, json};
+
+use crate::support::*;
+
+/// A small deterministic generator (xorshift64*), so failures reproduce.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.next()
+    }
+    fn v3(&mut self, lo: f64, hi: f64) -> [f64; 3] {
+        [self.range(lo, hi), self.range(lo, hi), self.range(lo, hi)]
+    }
+}
+
+const SHAPES: [&str; 7] = [
+    "sphere", "cube", "disk", "cylinder", "cone", "mesh", "plane",
+];
+
+/// A random scene of `n` objects of every shape, rotated and non-uniformly scaled.
+fn random_scene(seed: u64, n: usize, size: u32) -> Value {
+    let mut r = Rng(seed);
+    let mut objects = Vec::new();
+    for i in 0..n {
+        let shape = SHAPES[if i == n - 1 { 6 } else { i % 6 }];
+        let mut o = json!({
+            "shape": shape,
+            "material": {"diffuse": r.v3(0.1, 0.9), "mirror": if i % 4 == 0 { [0.3, 0.3, 0.3] } else { [0.0; 3] }},
+            "transform": [
+                {"scale": r.v3(0.2, 1.2)},
+                {"rotate": {"axis": r.v3(-1.0, 1.0), "degrees": r.range(0.0, 360.0)}},
+                {"translate": [r.range(-6.0, 6.0), r.range(-4.0, 4.0), r.range(4.0, 20.0)]}
+            ]
+        });
+        if shape == "plane" {
+            o["transform"] =
+                json!([{"rotate": {"axis": "x", "degrees": 80}}, {"translate": [0, 5, 0]}]);
+        }
+        if shape == "mesh" {
+            let positions: Vec<[f64; 3]> = (0..12).map(|_| r.v3(-1.0, 1.0)).collect();
+            let indices: Vec<[u32; 3]> = (0..10).map(|k| [k, k + 1, k + 2]).collect();
+            o["positions"] = json!(positions);
+            o["indices"] = json!(indices);
+        }
+        objects.push(o);
+    }
+    json!({
+        "version": 1,
+        "image": {"width": size, "height": size * 3 / 4},
+        "camera": {"focal_length": 1.2},
+        "ambient": [0.1, 0.1, 0.1],
+        "max_depth": 2,
+        "objects": objects,
+        "lights": [{"type": "point", "position": [3, -8, 0], "colour": [0.8, 0.8, 0.8]},
+                   {"type": "directional", "direction": [0.2, 1, 0.5], "colour": [0.3, 0.3, 0.3]}]
+    })
+}
+
+fn renderer(doc: &Value) -> Renderer {
+    Renderer::new(Arc::new(
+        parse(&serde_json::to_vec(doc).unwrap(), &Limits::NONE).unwrap(),
+    ))
+}
+
+#[test]
+fn bvh_finds_the_same_hit_as_brute_force() {
+    for seed in 1..=6 {
+        let r = renderer(&random_scene(seed, 60, 64));
+        let (w, h) = (r.scene.width, r.scene.height);
+        let mut hits = 0;
+        for v in 0..h {
+            for u in 0..w {
+                let ray = r.camera.pixel_centre(u, v);
+                let fast = r.world.closest(&ray, 1e-9, f64::INFINITY);
+                let slow = r.world.closest_brute_force(&ray, 1e-9, f64::INFINITY);
+                assert_eq!(fast, slow, "seed {seed}, pixel ({u}, {v})");
+                hits += fast.is_some() as u32;
+            }
+        }
+        assert!(
+            hits > w * h / 10,
+            "seed {seed}: the scene should be seen ({hits} hits)"
+        );
+        // Secondary rays start anywhere and go anywhere.
+        let mut rng = Rng(seed * 7919);
+        for _ in 0..2000 {
+            let ray = Ray::new(
+                DVec3::from(rng.v3(-8.0, 8.0)) + DVec3::new(0.0, 0.0, 10.0),
+                DVec3::from(rng.v3(-1.0, 1.0)),
+            );
+            assert_eq!(
+                r.world.closest(&ray, 1e-9, f64::INFINITY),
+                r.world.closest_brute_force(&ray, 1e-9, f64::INFINITY)
+            );
+            let shadow = r.world.occluded(&ray, 1e-9, 1.0);
+            assert_eq!(
+                shadow,
+                r.world.closest_brute_force(&ray, 1e-9, 1.0).is_some()
+            );
+        }
+    }
+}
+
+/// The scene with `steps` appended to the camera's and every object's transform, so the
+/// common move applies after each one's own placement.
+fn moved(doc: &Value, steps: &Value) -> Value {
+    let mut d = doc.clone();
+    let append = |list: &mut Value| {
+        let mut l = list.as_array().cloned().unwrap_or_default();
+        l.extend(steps.as_array().unwrap().iter().cloned());
+        *list = Value::Array(l);
+    };
+    for o in d["objects"].as_array_mut().unwrap() {
+        if o.get("transform").is_none() {
+            o["transform"] = json!([]);
+        }
+        append(&mut o["transform"]);
+    }
+    if d["camera"].get("transform").is_none() {
+        d["camera"]["transform"] = json!([]);
+    }
+    append(&mut d["camera"]["transform"]);
+    d
+}
+
+#[test]
+fn moving_camera_and_objects_together_changes_nothing() {
+    let steps = json!([{"rotate": {"axis": [1, 2, 3], "degrees": 37}}, {"translate": [3, -2, 7]}]);
+    for seed in [11, 12, 13] {
+        let mut doc = random_scene(seed, 30, 48);
+        doc["lights"] = json!([]); // Lights would have to move too; geometry is the point here.
+        let a = renderer(&doc);
+        let b = renderer(&moved(&doc, &steps));
+        for v in 0..a.scene.height {
+            for u in 0..a.scene.width {
+                match (a.pixel_hit(u, v), b.pixel_hit(u, v)) {
+                    (None, None) => {}
+                    (Some(x), Some(y)) => {
+                        assert_eq!(x.object, y.object, "seed {seed}, pixel ({u}, {v})");
+                        // The same λ up to the rounding of the extra transform.
+                        assert!(
+                            (x.lambda - y.lambda).abs() <= 1e-9 * x.lambda,
+                            "seed {seed} ({u}, {v}): {} vs {}",
+                            x.lambda,
+                            y.lambda
+                        );
+                        assert!((x.object_point - y.object_point).length() < 1e-9);
+                    }
+                    (x, y) => panic!("seed {seed}, pixel ({u}, {v}): {x:?} vs {y:?}"),
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn output_is_identical_whatever_the_tiles_and_threads() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut doc = random_scene(21, 40, 120);
+    doc["image"]["samples"] = json!(2);
+    doc["image"]["gamma"] = json!(2.2);
+    let scene = scene_file(&dir, "s.json", &doc);
+    let mut first: Option<(Vec<u8>, Vec<u8>, Vec<u8>)> = None;
+    for threads in ["1", "2"] {
+        for tile in ["8", "32", "64"] {
+            let outs: Vec<Vec<u8>> = ["png", "json", "npy"]
+                .iter()
+                .map(|ext| {
+                    let cmd = if *ext == "png" { "render" } else { "hits" };
+                    let out = dir.path().join(format!("o-{threads}-{tile}.{ext}"));
+                    let res = run(&[
+                        cmd,
+                        scene.to_str().unwrap(),
+                        "-o",
+                        out.to_str().unwrap(),
+                        "--threads",
+                        threads,
+                        "--tile",
+                        tile,
+                    ]);
+                    assert!(
+                        res.status.success(),
+                        "{}",
+                        String::from_utf8_lossy(&res.stderr)
+                    );
+                    std::fs::read(out).unwrap()
+                })
+                .collect();
+            let got = (outs[0].clone(), outs[1].clone(), outs[2].clone());
+            match &first {
+                None => first = Some(got),
+                Some(f) => assert!(
+                    f == &got,
+                    "threads {threads}, tile {tile} differ from threads 1, tile 8"
+                ),
+            }
+        }
+    }
+}
+
+#[test]
+fn a_region_has_exactly_the_pixels_of_the_full_render() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene_file(&dir, "s.json", &random_scene(5, 30, 96));
+    let full = dir.path().join("full.png");
+    let part = dir.path().join("part.png");
+    assert!(
+        run(&[
+            "render",
+            scene.to_str().unwrap(),
+            "-o",
+            full.to_str().unwrap()
+        ])
+        .status
+        .success()
+    );
+    assert!(
+        run(&[
+            "render",
+            scene.to_str().unwrap(),
+            "-o",
+            part.to_str().unwrap(),
+            "--region",
+            "13,7,50,41",
+            "--tile",
+            "16"
+        ])
+        .status
+        .success()
+    );
+    let (fw, _, fb) = decode_png(&std::fs::read(full).unwrap());
+    let (pw, ph, pb) = decode_png(&std::fs::read(part).unwrap());
+    assert_eq!((pw, ph), (50, 41));
+    for y in 0..41usize {
+        let src = ((7 + y) * fw as usize + 13) * 3;
+        assert_eq!(&pb[y * 150..(y + 1) * 150], &fb[src..src + 150], "row {y}");
+    }
+}
