@@ -232,6 +232,8 @@ fn run_traced(
             } else {
                 1
             };
+        let threads = pool.current_num_threads();
+        let trace_thread_s = stats.trace_thread_time.as_secs_f64();
         let line = serde_json::json!({
             "command": command,
             "width": region.width,
@@ -239,16 +241,19 @@ fn run_traced(
             "samples": scene.samples,
             "objects": scene.objects.len(),
             "triangles": scene.triangles(),
-            "threads": pool.current_num_threads(),
+            "threads": threads,
             "tile": opts.tile,
             "parse_s": parse_s.as_secs_f64(),
             "build_s": build_s.as_secs_f64(),
             "trace_s": timing.trace.as_secs_f64(),
-            "encode_s": timing.sink_thread.as_secs_f64() + timing.finish.as_secs_f64(),
+            "trace_thread_s": trace_thread_s,
+            "encode_thread_s": timing.sink_thread.as_secs_f64(),
+            "finish_s": timing.finish.as_secs_f64(),
             "total_s": t0.elapsed().as_secs_f64(),
             "primary_rays": primary,
             "rays": stats.rays,
             "primary_mrays_per_s": primary as f64 / timing.trace.as_secs_f64() / 1e6,
+            "tracing_mrays_per_s": primary as f64 / (trace_thread_s / threads as f64) / 1e6,
         });
         eprintln!("{line}");
     }

@@ -92,36 +92,58 @@ pub struct SlabRay {
     inv_dir: DVec3,
 }
 
+/// `min` and `max` as single instructions: the operands are never NaN here.
+#[inline(always)]
+fn fmin(a: f64, b: f64) -> f64 {
+    if a < b { a } else { b }
+}
+
+#[inline(always)]
+fn fmax(a: f64, b: f64) -> f64 {
+    if a > b { a } else { b }
+}
+
 impl SlabRay {
     /// Prepares `origin + λ dir`.
+    ///
+    /// A zero direction component is replaced by a tiny one of the same sign, so the
+    /// reciprocal is finite and `0 · ∞ = NaN` never arises. A ray running exactly in a
+    /// box's face plane then counts as leaving it; the BVH pads its boxes (see
+    /// [`Aabb::padded`]), so such a plane never holds a surface point.
     #[inline]
     pub fn new(origin: DVec3, dir: DVec3) -> Self {
+        let safe = |d: f64| {
+            if d.abs() < 1e-300 {
+                1e-300f64.copysign(d)
+            } else {
+                d
+            }
+        };
         Self {
             origin,
-            inv_dir: DVec3::ONE / dir,
+            inv_dir: DVec3::new(1.0 / safe(dir.x), 1.0 / safe(dir.y), 1.0 / safe(dir.z)),
         }
     }
 
-    /// Whether `d[axis] < 0` (for near-child-first traversal).
-    #[inline]
-    pub fn negative(&self, axis: usize) -> bool {
-        self.inv_dir[axis] < 0.0
-    }
-
     /// The entry `λ` of the ray into `[min, max]` clipped to `[t_min, t_max]`, if it enters.
-    ///
-    /// `f64::max`/`min` ignore the NaN that `0 · ∞` gives for a ray lying in a slab's
-    /// plane, so such a ray is kept (conservative), never lost.
-    #[inline]
+    #[inline(always)]
     pub fn enter(&self, min: DVec3, max: DVec3, t_min: f64, t_max: f64) -> Option<f64> {
-        let t0 = (min - self.origin) * self.inv_dir;
-        let t1 = (max - self.origin) * self.inv_dir;
-        let near = t0.min(t1);
-        let far = t0.max(t1);
-        let t_near = near.x.max(near.y).max(near.z).max(t_min);
+        let t0x = (min.x - self.origin.x) * self.inv_dir.x;
+        let t1x = (max.x - self.origin.x) * self.inv_dir.x;
+        let t0y = (min.y - self.origin.y) * self.inv_dir.y;
+        let t1y = (max.y - self.origin.y) * self.inv_dir.y;
+        let t0z = (min.z - self.origin.z) * self.inv_dir.z;
+        let t1z = (max.z - self.origin.z) * self.inv_dir.z;
+        let near = fmax(
+            fmax(fmin(t0x, t1x), fmin(t0y, t1y)),
+            fmax(fmin(t0z, t1z), t_min),
+        );
+        let far = fmin(
+            fmin(fmax(t0x, t1x), fmax(t0y, t1y)),
+            fmin(fmax(t0z, t1z), t_max),
+        );
         // 1 + 2γ₃ (pbrt): the far distance is rounded up so grazing rays are not lost.
-        let t_far = far.x.min(far.y).min(far.z).min(t_max) * (1.0 + 4.0 * f64::EPSILON);
-        (t_near <= t_far).then_some(t_near)
+        (near <= far * (1.0 + 4.0 * f64::EPSILON)).then_some(near)
     }
 }
 
@@ -143,13 +165,15 @@ mod tests {
     }
 
     #[test]
-    fn slab_keeps_ray_in_face_plane() {
-        // Origin exactly on the x = 1 slab plane with Δx = 0: 0·∞ is NaN, must not reject.
+    fn slab_keeps_ray_along_a_padded_face() {
+        // A ray with Δx = 0 running along the face x = 1 of a shape: the padded box
+        // still holds it, and no NaN appears.
         let r = SlabRay::new(DVec3::new(1.0, 0.0, -5.0), DVec3::Z);
-        assert!(
-            r.enter(DVec3::splat(-1.0), DVec3::splat(1.0), 0.0, f64::INFINITY)
-                .is_some()
-        );
+        let b = Aabb::CANONICAL.padded();
+        let t = r.enter(b.min, b.max, 0.0, f64::INFINITY).expect("enters");
+        assert!(t > 3.9 && t < 4.0);
+        let outside = SlabRay::new(DVec3::new(1.5, 0.0, -5.0), DVec3::Z);
+        assert!(outside.enter(b.min, b.max, 0.0, f64::INFINITY).is_none());
     }
 
     #[test]

@@ -1,5 +1,5 @@
-//! A bounding volume hierarchy: binned surface-area-heuristic build, flat node array,
-//! near-child-first traversal. Used over a scene's objects (world space) and over a
+//! A bounding volume hierarchy: binned surface-area-heuristic build, flat node arrays
+//! whose interior nodes hold both children's boxes, nearer-child-first traversal. Used over a scene's objects (world space) and over a
 //! mesh's triangles (object space), so the cost of a ray grows with the logarithm of the
 //! number of primitives.
 //!
@@ -30,14 +30,33 @@ struct Node {
     offset: u32,
     /// Leaf: primitive count (> 0). Interior: 0.
     count: u16,
-    /// Interior: the split axis, for near-child-first traversal.
-    axis: u16,
 }
+
+/// An interior node for traversal: the boxes of both children, so one visit tests
+/// both and goes to the nearer first (and skips a child the ray misses without
+/// pushing it).
+#[derive(Debug, Clone, Copy)]
+struct Inner {
+    min: [DVec3; 2],
+    max: [DVec3; 2],
+    /// Each child: an index into `inner`, or `LEAF | index` into `leaves`.
+    child: [u32; 2],
+}
+
+/// Marks a child reference as a leaf.
+const LEAF: u32 = 1 << 31;
 
 /// A BVH over primitives given by their bounds.
 #[derive(Debug, Clone)]
 pub struct Bvh {
+    /// The tree as built, each node with its own box (kept for its bounds and shape).
     nodes: Vec<Node>,
+    /// The tree as traversed.
+    inner: Vec<Inner>,
+    /// Leaves: `(first, count)` into `order`.
+    leaves: Vec<(u32, u32)>,
+    /// The root: an index into `inner` or `LEAF | index` (when the tree is one leaf).
+    root: u32,
     /// Primitive indices in leaf order.
     order: Vec<u32>,
 }
@@ -66,12 +85,37 @@ impl Bvh {
             .collect();
         let mut bvh = Bvh {
             nodes: Vec::with_capacity(2 * prims.len() / MAX_LEAF_PRIMS + 1),
+            inner: Vec::new(),
+            leaves: Vec::new(),
+            root: LEAF,
             order: Vec::with_capacity(prims.len()),
         };
         if !prims.is_empty() {
             bvh.build_node(&mut prims, 0);
+            bvh.root = bvh.flatten(0);
         }
         bvh
+    }
+
+    /// Converts node `i` of the built tree (and its subtree) to the traversal layout;
+    /// returns its reference.
+    fn flatten(&mut self, i: usize) -> u32 {
+        let n = self.nodes[i];
+        if n.count > 0 {
+            self.leaves.push((n.offset, n.count as u32));
+            return LEAF | (self.leaves.len() as u32 - 1);
+        }
+        let me = self.inner.len();
+        let (l, r) = (i + 1, n.offset as usize);
+        self.inner.push(Inner {
+            min: [self.nodes[l].min, self.nodes[r].min],
+            max: [self.nodes[l].max, self.nodes[r].max],
+            child: [0, 0],
+        });
+        let cl = self.flatten(l);
+        let cr = self.flatten(r);
+        self.inner[me].child = [cl, cr];
+        me as u32
     }
 
     /// Number of primitives held.
@@ -114,7 +158,6 @@ impl Bvh {
             max: bounds.max,
             offset: 0,
             count: 0,
-            axis: 0,
         });
         let split = if prims.len() <= 1 {
             None
@@ -127,9 +170,8 @@ impl Bvh {
                 self.nodes[me].count = prims.len() as u16;
                 self.order.extend(prims.iter().map(|p| p.index));
             }
-            Some((axis, mid)) => {
+            Some((_axis, mid)) => {
                 let (left, right) = prims.split_at_mut(mid);
-                self.nodes[me].axis = axis as u16;
                 self.build_node(left, depth + 1);
                 self.nodes[me].offset = self.nodes.len() as u32;
                 self.build_node(right, depth + 1);
@@ -236,39 +278,62 @@ impl Bvh {
         mut t_max: f64,
         mut leaf: F,
     ) -> f64 {
-        if self.nodes.is_empty() {
+        let Some(root) = self.nodes.first() else {
+            return t_max;
+        };
+        if ray.enter(root.min, root.max, t_min, t_max).is_none() {
             return t_max;
         }
-        let mut stack = [0u32; STACK_SIZE];
+        let mut stack = [(0u32, 0f64); STACK_SIZE];
         let mut sp = 0usize;
-        let mut i = 0usize;
+        let mut cur = self.root;
         loop {
-            let node = &self.nodes[i];
-            if ray.enter(node.min, node.max, t_min, t_max).is_some() {
-                if node.count > 0 {
-                    let start = node.offset as usize;
-                    for &p in &self.order[start..start + node.count as usize] {
-                        t_max = leaf(p, t_max);
+            if cur & LEAF != 0 {
+                let (start, count) = self.leaves[(cur & !LEAF) as usize];
+                for &p in &self.order[start as usize..(start + count) as usize] {
+                    t_max = leaf(p, t_max);
+                }
+            } else {
+                let n = &self.inner[cur as usize];
+                let h0 = ray.enter(n.min[0], n.max[0], t_min, t_max);
+                let h1 = ray.enter(n.min[1], n.max[1], t_min, t_max);
+                match (h0, h1) {
+                    (Some(a), Some(b)) => {
+                        let (near, far, t_far) = if a <= b {
+                            (n.child[0], n.child[1], b)
+                        } else {
+                            (n.child[1], n.child[0], a)
+                        };
+                        if sp < STACK_SIZE {
+                            stack[sp] = (far, t_far);
+                            sp += 1;
+                        }
+                        cur = near;
+                        continue;
                     }
-                } else {
-                    let (near, far) = if ray.negative(node.axis as usize) {
-                        (node.offset as usize, i + 1)
-                    } else {
-                        (i + 1, node.offset as usize)
-                    };
-                    if sp < STACK_SIZE {
-                        stack[sp] = far as u32;
-                        sp += 1;
+                    (Some(_), None) => {
+                        cur = n.child[0];
+                        continue;
                     }
-                    i = near;
-                    continue;
+                    (None, Some(_)) => {
+                        cur = n.child[1];
+                        continue;
+                    }
+                    (None, None) => {}
                 }
             }
-            if sp == 0 {
-                return t_max;
+            // Pop the next subtree that may still hold something nearer (or tied).
+            loop {
+                if sp == 0 {
+                    return t_max;
+                }
+                sp -= 1;
+                let (node, t) = stack[sp];
+                if t <= t_max {
+                    cur = node;
+                    break;
+                }
             }
-            sp -= 1;
-            i = stack[sp] as usize;
         }
     }
 
@@ -282,29 +347,34 @@ impl Bvh {
         t_max: f64,
         mut leaf: F,
     ) -> bool {
-        if self.nodes.is_empty() {
+        let Some(root) = self.nodes.first() else {
+            return false;
+        };
+        if ray.enter(root.min, root.max, t_min, t_max).is_none() {
             return false;
         }
         let mut stack = [0u32; STACK_SIZE];
         let mut sp = 0usize;
-        let mut i = 0usize;
+        let mut cur = self.root;
         loop {
-            let node = &self.nodes[i];
-            if ray.enter(node.min, node.max, t_min, t_max).is_some() {
-                if node.count > 0 {
-                    let start = node.offset as usize;
-                    if self.order[start..start + node.count as usize]
-                        .iter()
-                        .any(|&p| leaf(p))
-                    {
-                        return true;
-                    }
-                } else {
-                    if sp < STACK_SIZE {
-                        stack[sp] = node.offset;
+            if cur & LEAF != 0 {
+                let (start, count) = self.leaves[(cur & !LEAF) as usize];
+                if self.order[start as usize..(start + count) as usize]
+                    .iter()
+                    .any(|&p| leaf(p))
+                {
+                    return true;
+                }
+            } else {
+                let n = &self.inner[cur as usize];
+                let h0 = ray.enter(n.min[0], n.max[0], t_min, t_max).is_some();
+                let h1 = ray.enter(n.min[1], n.max[1], t_min, t_max).is_some();
+                if h0 || h1 {
+                    if h0 && h1 && sp < STACK_SIZE {
+                        stack[sp] = n.child[1];
                         sp += 1;
                     }
-                    i += 1;
+                    cur = if h0 { n.child[0] } else { n.child[1] };
                     continue;
                 }
             }
@@ -312,7 +382,7 @@ impl Bvh {
                 return false;
             }
             sp -= 1;
-            i = stack[sp] as usize;
+            cur = stack[sp];
         }
     }
 

@@ -205,11 +205,10 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<'_, W> {
                     buf,
                     first,
                 } = &mut *guard;
-                let x0 = tile.rect.x;
-                let x0 = rows_region_x(rows, x0);
-                rows.push(tile, |v, row| {
+                let x0 = rows.region().x;
+                rows.push(tile, |v, segments| {
                     buf.clear();
-                    for (k, s) in row.iter().enumerate() {
+                    for (k, s) in segments.iter().flat_map(|s| s.iter()).enumerate() {
                         if !*first {
                             buf.push(b',');
                         }
@@ -227,10 +226,10 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<'_, W> {
             HitFormat::Npy => {
                 let mut guard = self.state.lock().map_err(closed)?;
                 let HitState { out, rows, buf, .. } = &mut *guard;
-                let x0 = rows_region_x(rows, tile.rect.x);
-                rows.push(tile, |v, row| {
+                let x0 = rows.region().x;
+                rows.push(tile, |v, segments| {
                     buf.clear();
-                    for (k, s) in row.iter().enumerate() {
+                    for (k, s) in segments.iter().flat_map(|s| s.iter()).enumerate() {
                         npy_record(buf, x0 + k as u32, v, s);
                     }
                     out.write_all(buf)
@@ -239,11 +238,6 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<'_, W> {
             }
         }
     }
-}
-
-/// The region's left column (rows always start there).
-fn rows_region_x<T: Clone + Default>(rows: &RowAssembler<T>, _tile_x: u32) -> u32 {
-    rows.region().x
 }
 
 /// The NumPy dtype of a hit record, fields as SPEC §5 names them (`name` left out).
@@ -268,33 +262,30 @@ pub fn npy_header(h: u32, w: u32) -> Vec<u8> {
 }
 
 /// Appends one record: a miss has `object = −1`, NaN vectors and an empty face.
+#[inline]
 pub fn npy_record(buf: &mut Vec<u8>, u: u32, v: u32, s: &Option<Surface>) {
-    buf.extend_from_slice(&(u as i32).to_le_bytes());
-    buf.extend_from_slice(&(v as i32).to_le_bytes());
-    buf.push(s.is_some() as u8);
-    let obj = s.as_ref().map_or(-1, |s| s.object as i32);
-    buf.extend_from_slice(&obj.to_le_bytes());
-    let nan3 = [f64::NAN; 3];
-    let (lambda, p, op, n) = match s {
-        Some(s) => (
-            s.lambda,
-            s.point.to_array(),
-            s.object_point.to_array(),
-            s.normal.to_array(),
-        ),
-        None => (f64::NAN, nan3, nan3, nan3),
+    let mut r = [0u8; NPY_RECORD_BYTES];
+    r[0..4].copy_from_slice(&(u as i32).to_le_bytes());
+    r[4..8].copy_from_slice(&(v as i32).to_le_bytes());
+    r[8] = s.is_some() as u8;
+    r[9..13].copy_from_slice(&s.as_ref().map_or(-1, |s| s.object as i32).to_le_bytes());
+    let values: [f64; 10] = match s {
+        Some(s) => {
+            let (p, o, n) = (s.point, s.object_point, s.normal);
+            [s.lambda, p.x, p.y, p.z, o.x, o.y, o.z, n.x, n.y, n.z]
+        }
+        None => [f64::NAN; 10],
     };
-    buf.extend_from_slice(&lambda.to_le_bytes());
-    for x in p.iter().chain(&op).chain(&n) {
-        buf.extend_from_slice(&x.to_le_bytes());
+    for (k, x) in values.iter().enumerate() {
+        r[13 + 8 * k..21 + 8 * k].copy_from_slice(&x.to_le_bytes());
     }
-    let mut face = [0u8; 8];
+    // '<U2': two UCS-4 code units; an empty string is all zeros.
     if let Some(f) = s.as_ref().and_then(|s| s.face) {
         let b = f.label().as_bytes();
-        face[0] = b[0];
-        face[4] = b[1];
+        r[93] = b[0];
+        r[97] = b[1];
     }
-    buf.extend_from_slice(&face);
+    buf.extend_from_slice(&r);
 }
 
 #[cfg(test)]

@@ -112,9 +112,11 @@ impl<W: Write + Send + 'static> TileSink<[u8; 3]> for PngSink<W> {
         let Some(stream) = stream.as_mut() else {
             return Err(SinkClosed("the PNG is already finished".into()));
         };
-        rows.push(tile, |_, row| {
+        rows.push(tile, |_, segments| {
             line.clear();
-            line.extend(row.iter().flatten());
+            for seg in segments {
+                line.extend(seg.iter().flatten());
+            }
             stream.write_all(line)
         })
         .map_err(|e| SinkClosed(e.to_string()))

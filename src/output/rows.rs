@@ -1,6 +1,7 @@
 //! Turns tiles, which finish in any order, into complete rows in order, so that row-major
 //! outputs (PNG, JSON and NPY hit data) can be written while the rest is still tracing.
-//! Only the bands of tiles still in flight are held in memory.
+//! Only the bands of tiles still in flight are held in memory, and pixels are never
+//! copied: a complete row is handed over as the slices of the tiles it crosses.
 
 use std::collections::BTreeMap;
 
@@ -15,11 +16,11 @@ pub struct RowAssembler<T> {
 }
 
 struct Band<T> {
-    pixels: Vec<T>,
+    tiles: Vec<Tile<T>>,
     filled: u64,
 }
 
-impl<T: Clone + Default> RowAssembler<T> {
+impl<T> RowAssembler<T> {
     /// For the tiles of `region` cut at `tile_px` (as [`crate::render::run`] cuts them).
     pub fn new(region: Rect, tile_px: u32) -> Self {
         Self {
@@ -37,53 +38,56 @@ impl<T: Clone + Default> RowAssembler<T> {
 
     /// Rows of the region released so far.
     pub fn rows_done(&self) -> u32 {
-        (self.next_band * self.tile_px).min(self.region.height)
-    }
-
-    /// Takes a tile; calls `emit(v, row)` for every row that became complete, in order.
-    pub fn push<E>(
-        &mut self,
-        tile: Tile<T>,
-        mut emit: impl FnMut(u32, &[T]) -> Result<(), E>,
-    ) -> Result<(), E> {
-        let r = tile.rect;
-        let band_index = (r.y - self.region.y) / self.tile_px;
-        let band_top = self.region.y + band_index * self.tile_px;
-        let band_height = self
-            .tile_px
-            .min(self.region.y + self.region.height - band_top);
-        let width = self.region.width as usize;
-        let band = self.bands.entry(band_index).or_insert_with(|| Band {
-            pixels: vec![T::default(); width * band_height as usize],
-            filled: 0,
-        });
-        for row in 0..r.height as usize {
-            let dst = (r.y - band_top) as usize + row;
-            let start = dst * width + (r.x - self.region.x) as usize;
-            band.pixels[start..start + r.width as usize].clone_from_slice(
-                &tile.pixels[row * r.width as usize..(row + 1) * r.width as usize],
-            );
-        }
-        band.filled += r.pixels();
-        while let Some(band) = self.bands.get(&self.next_band) {
-            let top = self.region.y + self.next_band * self.tile_px;
-            let h = self.tile_px.min(self.region.y + self.region.height - top);
-            if band.filled < h as u64 * width as u64 {
-                break;
-            }
-            if let Some(band) = self.bands.remove(&self.next_band) {
-                for (k, row) in band.pixels.chunks(width.max(1)).enumerate() {
-                    emit(top + k as u32, row)?;
-                }
-            }
-            self.next_band += 1;
-        }
-        Ok(())
+        self.next_band
+            .saturating_mul(self.tile_px)
+            .min(self.region.height)
     }
 
     /// Whether every row has been released.
     pub fn is_complete(&self) -> bool {
         self.rows_done() >= self.region.height
+    }
+
+    /// Takes a tile; calls `emit(v, segments)` for every row that became complete, in
+    /// order, where `segments` are the row's pieces left to right.
+    pub fn push<E>(
+        &mut self,
+        tile: Tile<T>,
+        mut emit: impl FnMut(u32, &[&[T]]) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let band_index = (tile.rect.y - self.region.y) / self.tile_px;
+        let band = self.bands.entry(band_index).or_insert_with(|| Band {
+            tiles: Vec::new(),
+            filled: 0,
+        });
+        band.filled += tile.rect.pixels();
+        band.tiles.push(tile);
+        loop {
+            let top = self.region.y + self.next_band * self.tile_px;
+            let h = self
+                .tile_px
+                .min((self.region.y + self.region.height).saturating_sub(top));
+            let complete = self
+                .bands
+                .get(&self.next_band)
+                .is_some_and(|b| b.filled >= h as u64 * self.region.width as u64);
+            if h == 0 || !complete {
+                return Ok(());
+            }
+            if let Some(mut band) = self.bands.remove(&self.next_band) {
+                band.tiles.sort_by_key(|t| t.rect.x);
+                let mut segments: Vec<&[T]> = Vec::with_capacity(band.tiles.len());
+                for row in 0..h as usize {
+                    segments.clear();
+                    segments.extend(band.tiles.iter().map(|t| {
+                        let w = t.rect.width as usize;
+                        &t.pixels[row * w..(row + 1) * w]
+                    }));
+                    emit(top + row as u32, &segments)?;
+                }
+            }
+            self.next_band += 1;
+        }
     }
 }
 
@@ -113,8 +117,8 @@ mod tests {
                     pixels,
                     rays: 0,
                 },
-                |v, row| {
-                    rows.push((v, row.to_vec()));
+                |v, segs| {
+                    rows.push((v, segs.concat()));
                     Ok(())
                 },
             )

@@ -144,6 +144,8 @@ pub struct RenderStats {
     pub tiles: u64,
     /// Rays traced.
     pub rays: u64,
+    /// Time spent tracing, summed over the worker threads (sinks not included).
+    pub trace_thread_time: std::time::Duration,
 }
 
 /// Traces every tile of `region` with `kernel` into `sink`, on the current rayon pool.
@@ -158,6 +160,7 @@ pub fn run<K: Kernel, S: TileSink<K::Pixel>>(
     let rects = region.tiles(tile_px);
     let next = AtomicUsize::new(0);
     let rays = std::sync::atomic::AtomicU64::new(0);
+    let nanos = std::sync::atomic::AtomicU64::new(0);
     // Each task takes the *next* tile from the counter, whatever rayon's split, so tiles
     // start (and mostly finish) in row-major order and streamed rows leave early.
     (0..rects.len())
@@ -168,6 +171,7 @@ pub fn run<K: Kernel, S: TileSink<K::Pixel>>(
                 return Err(Stopped::Cancelled);
             }
             let r = rects[next.fetch_add(1, Ordering::Relaxed)];
+            let started = std::time::Instant::now();
             let mut pixels = Vec::with_capacity(r.pixels() as usize);
             let mut n = 0u64;
             for v in r.y..r.y + r.height {
@@ -176,6 +180,7 @@ pub fn run<K: Kernel, S: TileSink<K::Pixel>>(
                 }
             }
             rays.fetch_add(n, Ordering::Relaxed);
+            nanos.fetch_add(started.elapsed().as_nanos() as u64, Ordering::Relaxed);
             sink.tile(Tile {
                 rect: r,
                 pixels,
@@ -189,6 +194,7 @@ pub fn run<K: Kernel, S: TileSink<K::Pixel>>(
     Ok(RenderStats {
         tiles: rects.len() as u64,
         rays: rays.into_inner(),
+        trace_thread_time: std::time::Duration::from_nanos(nanos.into_inner()),
     })
 }
 
