@@ -8,6 +8,7 @@
 //! are resolved by the caller's leaf function (nodes are entered when their entry `λ`
 //! is *at most* the best so far, so a tie in a later node is still seen).
 
+use arrayvec::ArrayVec;
 use glam::DVec3;
 
 use super::bounds::{Aabb, SlabRay};
@@ -35,10 +36,15 @@ struct Node {
 /// An interior node for traversal: the boxes of both children, so one visit tests
 /// both and goes to the nearer first (and skips a child the ray misses without
 /// pushing it).
+///
+/// Boxes are stored axis by axis with the two children side by side, so that both slab
+/// tests run as two-lane vector operations.
 #[derive(Debug, Clone, Copy)]
 struct Inner {
-    min: [DVec3; 2],
-    max: [DVec3; 2],
+    /// `min[axis][child]`.
+    min: [[f64; 2]; 3],
+    /// `max[axis][child]`.
+    max: [[f64; 2]; 3],
     /// Each child: an index into `inner`, or `LEAF | index` into `leaves`.
     child: [u32; 2],
 }
@@ -107,9 +113,10 @@ impl Bvh {
         }
         let me = self.inner.len();
         let (l, r) = (i + 1, n.offset as usize);
+        let (a, b) = (self.nodes[l], self.nodes[r]);
         self.inner.push(Inner {
-            min: [self.nodes[l].min, self.nodes[r].min],
-            max: [self.nodes[l].max, self.nodes[r].max],
+            min: [[a.min.x, b.min.x], [a.min.y, b.min.y], [a.min.z, b.min.z]],
+            max: [[a.max.x, b.max.x], [a.max.y, b.max.y], [a.max.z, b.max.z]],
             child: [0, 0],
         });
         let cl = self.flatten(l);
@@ -284,8 +291,8 @@ impl Bvh {
         if ray.enter(root.min, root.max, t_min, t_max).is_none() {
             return t_max;
         }
-        let mut stack = [(0u32, 0f64); STACK_SIZE];
-        let mut sp = 0usize;
+        // ArrayVec: a fixed stack that is not zeroed on every call (this runs per ray).
+        let mut stack: ArrayVec<(u32, f64), STACK_SIZE> = ArrayVec::new();
         let mut cur = self.root;
         loop {
             if cur & LEAF != 0 {
@@ -295,8 +302,7 @@ impl Bvh {
                 }
             } else {
                 let n = &self.inner[cur as usize];
-                let h0 = ray.enter(n.min[0], n.max[0], t_min, t_max);
-                let h1 = ray.enter(n.min[1], n.max[1], t_min, t_max);
+                let (h0, h1) = ray.enter2(&n.min, &n.max, t_min, t_max);
                 match (h0, h1) {
                     (Some(a), Some(b)) => {
                         let (near, far, t_far) = if a <= b {
@@ -304,10 +310,9 @@ impl Bvh {
                         } else {
                             (n.child[1], n.child[0], a)
                         };
-                        if sp < STACK_SIZE {
-                            stack[sp] = (far, t_far);
-                            sp += 1;
-                        }
+                        // A full stack drops the far subtree: unreachable within the
+                        // depth bound the build guarantees.
+                        let _ = stack.try_push((far, t_far));
                         cur = near;
                         continue;
                     }
@@ -324,11 +329,9 @@ impl Bvh {
             }
             // Pop the next subtree that may still hold something nearer (or tied).
             loop {
-                if sp == 0 {
+                let Some((node, t)) = stack.pop() else {
                     return t_max;
-                }
-                sp -= 1;
-                let (node, t) = stack[sp];
+                };
                 if t <= t_max {
                     cur = node;
                     break;
@@ -353,8 +356,7 @@ impl Bvh {
         if ray.enter(root.min, root.max, t_min, t_max).is_none() {
             return false;
         }
-        let mut stack = [0u32; STACK_SIZE];
-        let mut sp = 0usize;
+        let mut stack: ArrayVec<u32, STACK_SIZE> = ArrayVec::new();
         let mut cur = self.root;
         loop {
             if cur & LEAF != 0 {
@@ -367,22 +369,20 @@ impl Bvh {
                 }
             } else {
                 let n = &self.inner[cur as usize];
-                let h0 = ray.enter(n.min[0], n.max[0], t_min, t_max).is_some();
-                let h1 = ray.enter(n.min[1], n.max[1], t_min, t_max).is_some();
+                let (h0, h1) = ray.enter2(&n.min, &n.max, t_min, t_max);
+                let (h0, h1) = (h0.is_some(), h1.is_some());
                 if h0 || h1 {
-                    if h0 && h1 && sp < STACK_SIZE {
-                        stack[sp] = n.child[1];
-                        sp += 1;
+                    if h0 && h1 {
+                        let _ = stack.try_push(n.child[1]);
                     }
                     cur = if h0 { n.child[0] } else { n.child[1] };
                     continue;
                 }
             }
-            if sp == 0 {
-                return false;
+            match stack.pop() {
+                Some(c) => cur = c,
+                None => return false,
             }
-            sp -= 1;
-            cur = stack[sp];
         }
     }
 

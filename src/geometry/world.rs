@@ -6,7 +6,7 @@
 
 use std::sync::Arc;
 
-use glam::{DAffine3, DVec3};
+use glam::{DAffine3, DMat3, DVec3};
 
 use super::{
     bounds::{Aabb, SlabRay},
@@ -29,13 +29,20 @@ enum Kind {
     Mesh(Box<MeshAccel>),
 }
 
-/// One object ready to trace.
+/// What every ray test of an object reads (kept small: it is the hot data).
 #[derive(Debug, Clone)]
 struct Solid {
-    kind: Kind,
     /// `object_from_world`, the map every ray takes into object space.
     object_from_world: DAffine3,
+    kind: Kind,
+}
+
+/// What only the closest hit's record reads.
+#[derive(Debug, Clone)]
+struct Placement {
     world_from_object: Transform,
+    /// `(M⁻¹)ᵀ`, the 3 × 3 map of normals.
+    normal_from_object: DMat3,
     closed: bool,
 }
 
@@ -43,6 +50,7 @@ struct Solid {
 #[derive(Debug, Clone)]
 pub struct World {
     solids: Vec<Solid>,
+    placements: Vec<Placement>,
     bvh: Bvh,
     /// Objects without bounds (planes), in scene order.
     unbounded: Vec<u32>,
@@ -52,6 +60,7 @@ impl World {
     /// Prepares `(shape, world_from_object)` pairs, in scene order, and builds the BVH.
     pub fn new<'a>(objects: impl IntoIterator<Item = (&'a Shape, &'a Transform)>) -> World {
         let mut solids = Vec::new();
+        let mut placements = Vec::new();
         let mut bounds = Vec::new();
         let mut unbounded = Vec::new();
         for (i, (shape, t)) in objects.into_iter().enumerate() {
@@ -98,15 +107,19 @@ impl World {
                 }
             }
             solids.push(Solid {
-                kind,
                 object_from_world: t.inverse,
+                kind,
+            });
+            placements.push(Placement {
                 world_from_object: *t,
+                normal_from_object: t.inverse.matrix3.transpose(),
                 closed: shape.is_closed(),
             });
         }
         World {
             bvh: Bvh::build(&bounds),
             solids,
+            placements,
             unbounded,
         }
     }
@@ -249,9 +262,10 @@ impl World {
             Kind::Cone => (cone::normal(object_point, hit.part), None),
             Kind::Mesh(m) => (m.normal(hit.part), None),
         };
-        let mut normal = s.world_from_object.normal(n_object);
+        let place = &self.placements[hit.object as usize];
+        let mut normal = place.normal_from_object.mul_vec3(n_object).normalize();
         let front = normal.dot(ray.dir) < 0.0;
-        if !s.closed && !front {
+        if !place.closed && !front {
             normal = -normal;
         }
         Surface {
@@ -267,7 +281,7 @@ impl World {
 
     /// The `world_from_object` transform of object `i`.
     pub fn transform(&self, i: u32) -> &Transform {
-        &self.solids[i as usize].world_from_object
+        &self.placements[i as usize].world_from_object
     }
 }
 
