@@ -90,7 +90,7 @@ pub fn validate(a: ValidateArgs) -> anyhow::Result<ExitCode> {
     match scene::parse(&bytes, &Limits::NONE) {
         Ok(s) => {
             if a.normalised {
-                println!("{}", serde_json::to_string_pretty(&s.normalised)?);
+                println!("{}", serde_json::to_string_pretty(&s.normalised())?);
             } else {
                 println!(
                     "{}: valid: {} × {} pixels, {} samples per pixel, {} objects, {} triangles, {} lights",

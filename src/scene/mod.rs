@@ -44,8 +44,8 @@ pub struct Scene {
     pub materials: Vec<Material>,
     /// The lights.
     pub lights: Vec<Light>,
-    /// The document as validated, every default made explicit.
-    pub normalised: SceneDoc,
+    /// The document as it was given.
+    pub document: SceneDoc,
 }
 
 impl Scene {
@@ -63,6 +63,11 @@ impl Scene {
                 _ => 0,
             })
             .sum()
+    }
+
+    /// The document with every default made explicit.
+    pub fn normalised(&self) -> SceneDoc {
+        validate::normalise(&self.document)
     }
 
     /// The name of object `i`, if it has one.
