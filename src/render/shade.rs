@@ -74,10 +74,30 @@ pub fn facing_normal(s: &Surface, dir: DVec3) -> DVec3 {
     }
 }
 
-/// One light's terms at a surface point seen along `dir`.
+/// One light's terms at a surface point seen along `dir`, its shadow ray traced.
 #[inline]
 pub fn light_term(
     world: &World,
+    light: &Light,
+    s: &Surface,
+    n: DVec3,
+    dir: DVec3,
+    m: &Material,
+) -> LightTerm {
+    let mut term = unshadowed_light_term(light, s, n, dir, m);
+    if !term.outside_cone {
+        term.blocked = world.occluded(&term.shadow_ray, SECONDARY_LAMBDA_MIN, term.shadow_t_max);
+        if term.blocked {
+            term.diffuse = DVec3::ZERO;
+            term.specular = DVec3::ZERO;
+        }
+    }
+    term
+}
+
+/// One light's terms as if nothing blocked it; the shadow ray is made, not traced.
+#[inline]
+pub fn unshadowed_light_term(
     light: &Light,
     s: &Surface,
     n: DVec3,
@@ -98,9 +118,8 @@ pub fn light_term(
             (position - origin, 1.0, colour, !inside)
         }
     };
-    let shadow_ray = Ray::new(origin, to_light);
     let mut term = LightTerm {
-        shadow_ray,
+        shadow_ray: Ray::new(origin, to_light),
         shadow_t_max: t_max,
         outside_cone: outside,
         blocked: false,
@@ -113,10 +132,6 @@ pub fn light_term(
     if outside {
         return term;
     }
-    term.blocked = world.occluded(&shadow_ray, SECONDARY_LAMBDA_MIN, t_max);
-    if term.blocked {
-        return term;
-    }
     let l = to_light.normalize();
     let v = -dir.normalize();
     let n_dot_l = n.dot(l);
@@ -126,7 +141,10 @@ pub fn light_term(
     term.n_dot_l = n_dot_l;
     term.r_dot_v = r_dot_v;
     term.diffuse = colour * m.diffuse * n_dot_l.max(0.0);
-    term.specular = colour * m.specular * r_dot_v.max(0.0).powf(m.shininess);
+    // `pow` is the costliest step of shading; a black specular needs none.
+    if m.specular != DVec3::ZERO {
+        term.specular = colour * m.specular * r_dot_v.max(0.0).powf(m.shininess);
+    }
     term
 }
 
@@ -178,9 +196,19 @@ impl Shader<'_> {
         let n = facing_normal(&s, ray.dir);
         let mut c = self.scene.ambient * m.ambient;
         for light in &self.scene.lights {
+            let t = unshadowed_light_term(light, &s, n, ray.dir, m);
+            let lit = t.diffuse + t.specular;
+            // A light that would add nothing needs no shadow ray.
+            if t.outside_cone || lit == DVec3::ZERO {
+                continue;
+            }
             rays.0 += 1;
-            let t = light_term(self.world, light, &s, n, ray.dir, m);
-            c += t.diffuse + t.specular;
+            if !self
+                .world
+                .occluded(&t.shadow_ray, SECONDARY_LAMBDA_MIN, t.shadow_t_max)
+            {
+                c += lit;
+            }
         }
         if depth < self.scene.max_depth
             && (m.mirror != DVec3::ZERO || m.transmission != DVec3::ZERO)
