@@ -234,7 +234,8 @@ pub fn grade(a: GradeArgs) -> anyhow::Result<ExitCode> {
         Some(SubmissionFormat::Csv) => Hint::Csv,
     };
     let what = a.submission.display();
-    let submission = Submission::parse(&bytes, hint).with_context(|| format!("{what}"))?;
+    let submission = Submission::parse_for_frame(&bytes, hint, r.scene.width, r.scene.height)
+        .with_context(|| format!("{what}"))?;
     let opts = GradeOptions {
         worst: a.worst,
         inline_diff: a.inline_diff,

@@ -136,17 +136,85 @@ fn neighbours(u: u32, v: u32, w: u32, h: u32) -> impl Iterator<Item = (u32, u32)
     )
 }
 
-/// Keeps the `n` worst entries by `key` (larger is worse), ties by row then column.
-fn keep_worst<K: PartialOrd + Copy>(
-    mut items: Vec<(K, u32, u32, WorstPixel)>,
-    n: usize,
-) -> Vec<WorstPixel> {
-    items.sort_by(|a, b| {
-        b.0.partial_cmp(&a.0)
+/// How bad a pixel is: compared element by element (larger is worse), then the earlier
+/// pixel (row, then column) first, so the list is the same on every run.
+#[derive(Debug, Clone, Copy)]
+struct Rank {
+    key: [f64; 3],
+    u: u32,
+    v: u32,
+}
+
+impl Rank {
+    fn cmp(&self, other: &Rank) -> std::cmp::Ordering {
+        self.key
+            .iter()
+            .zip(&other.key)
+            .map(|(a, b)| a.total_cmp(b))
+            .find(|o| o.is_ne())
             .unwrap_or(std::cmp::Ordering::Equal)
-            .then((a.2, a.1).cmp(&(b.2, b.1)))
-    });
-    items.into_iter().take(n).map(|x| x.3).collect()
+            .then((other.v, other.u).cmp(&(self.v, self.u)))
+    }
+}
+
+struct Ranked(Rank, WorstPixel);
+
+impl PartialEq for Ranked {
+    fn eq(&self, other: &Self) -> bool {
+        self.0.cmp(&other.0).is_eq()
+    }
+}
+impl Eq for Ranked {}
+impl PartialOrd for Ranked {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Ranked {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.0.cmp(&other.0)
+    }
+}
+
+/// The `n` worst pixels seen, kept in a bounded heap: memory stays `O(n)` however many
+/// pixels differ, and a pixel's record is built only when it makes the list.
+struct Worst {
+    n: usize,
+    heap: std::collections::BinaryHeap<std::cmp::Reverse<Ranked>>,
+}
+
+impl Worst {
+    fn new(n: usize) -> Worst {
+        Worst {
+            n,
+            heap: std::collections::BinaryHeap::with_capacity(n.min(1 << 16) + 1),
+        }
+    }
+
+    fn offer(&mut self, rank: Rank, make: impl FnOnce() -> WorstPixel) {
+        if self.n == 0 {
+            return;
+        }
+        if self.heap.len() == self.n {
+            match self.heap.peek() {
+                Some(least) if rank.cmp(&least.0.0).is_gt() => {
+                    self.heap.pop();
+                }
+                _ => return,
+            }
+        }
+        self.heap.push(std::cmp::Reverse(Ranked(rank, make())));
+    }
+
+    /// Worst first.
+    fn into_vec(self) -> Vec<WorstPixel> {
+        // Ascending order of `Reverse` is descending order of rank.
+        self.heap
+            .into_sorted_vec()
+            .into_iter()
+            .map(|r| r.0.1)
+            .collect()
+    }
 }
 
 /// Compares two images of the same size.
@@ -165,7 +233,7 @@ pub fn images(
         height: h,
         data: Vec::with_capacity(reference.data.len()),
     };
-    let mut candidates = Vec::new();
+    let mut top = Worst::new(worst);
     for v in 0..h {
         for u in 0..w {
             let (r, s) = (reference.get(u, v), submitted.get(u, v));
@@ -183,29 +251,29 @@ pub fn images(
                 .extend_from_slice(&if pass { dim(r) } else { FAIL_RGB });
             if err > 0 {
                 let sum: u32 = (0..3).map(|k| r[k].abs_diff(s[k]) as u32).sum();
-                candidates.push((
-                    (!pass as u8, err, sum),
+                let rank = Rank {
+                    key: [(!pass) as u8 as f64, err as f64, sum as f64],
                     u,
                     v,
-                    WorstPixel {
-                        u,
-                        v,
-                        pass,
-                        failures: if direct { vec![] } else { vec![check::COLOUR] },
-                        colour_error: Some(err),
-                        lambda_rel_error: None,
-                        normal_angle_degrees: None,
-                        reference: PixelValue::Colour { rgb: r },
-                        submitted: PixelValue::Colour { rgb: s },
-                    },
-                ));
+                };
+                top.offer(rank, || WorstPixel {
+                    u,
+                    v,
+                    pass,
+                    failures: if direct { vec![] } else { vec![check::COLOUR] },
+                    colour_error: Some(err),
+                    lambda_rel_error: None,
+                    normal_angle_degrees: None,
+                    reference: PixelValue::Colour { rgb: r },
+                    submitted: PixelValue::Colour { rgb: s },
+                });
             }
         }
     }
     Comparison {
         failing,
         forgiven,
-        worst: keep_worst(candidates, worst),
+        worst: top.into_vec(),
         hits: None,
         diff,
     }
@@ -350,7 +418,7 @@ pub fn hits(
         height: h,
         data: Vec::with_capacity(w as usize * h as usize * 3),
     };
-    let mut candidates = Vec::new();
+    let mut top = Worst::new(worst);
     let worse = |a: Option<f64>, b: Option<f64>| match (a, b) {
         (Some(x), Some(y)) if x.is_nan() || y.is_nan() => Some(f64::NAN),
         (Some(x), Some(y)) => Some(x.max(y)),
@@ -403,22 +471,22 @@ pub fn hits(
                 };
                 let magnitude =
                     ratio(c.lambda_rel, tol.lambda_rel).max(ratio(c.angle, tol.normal_degrees));
-                candidates.push((
-                    (!pass as u8, class, magnitude),
+                let rank = Rank {
+                    key: [(!pass) as u8 as f64, class as f64, magnitude],
                     u,
                     v,
-                    WorstPixel {
-                        u,
-                        v,
-                        pass,
-                        failures: c.failures(),
-                        colour_error: None,
-                        lambda_rel_error: c.lambda_rel,
-                        normal_angle_degrees: c.angle,
-                        reference: hit_value(r),
-                        submitted: submitted_value(s),
-                    },
-                ));
+                };
+                top.offer(rank, || WorstPixel {
+                    u,
+                    v,
+                    pass,
+                    failures: c.failures(),
+                    colour_error: None,
+                    lambda_rel_error: c.lambda_rel,
+                    normal_angle_degrees: c.angle,
+                    reference: hit_value(r),
+                    submitted: submitted_value(s),
+                });
             }
         }
     }
@@ -431,7 +499,7 @@ pub fn hits(
     Comparison {
         failing,
         forgiven,
-        worst: keep_worst(candidates, worst),
+        worst: top.into_vec(),
         hits: Some(counts),
         diff,
     }
@@ -463,6 +531,20 @@ mod tests {
         assert!(c.worst[1].pass);
         assert_eq!(c.diff.get(3, 0), FAIL_RGB);
         assert_eq!(c.diff.get(0, 0), [35, 35, 35]);
+    }
+
+    #[test]
+    fn worst_list_is_bounded_and_ordered() {
+        let a = flat(20, 10, 100);
+        let mut b = flat(20, 10, 110);
+        b.set(7, 9, [200, 100, 100]);
+        b.set(3, 2, [100, 190, 100]);
+        let c = images(&a, &b, &Tolerances::default(), 4);
+        assert_eq!(c.failing, 200);
+        let at: Vec<(u32, u32)> = c.worst.iter().map(|w| (w.u, w.v)).collect();
+        // The two largest errors, then equal ones in row-major order.
+        assert_eq!(at, vec![(7, 9), (3, 2), (0, 0), (1, 0)]);
+        assert!(images(&a, &b, &Tolerances::default(), 0).worst.is_empty());
     }
 
     #[test]

@@ -44,17 +44,54 @@ impl RgbImage {
     /// Decodes a PNG of any bit depth and colour type into 8-bit RGB: 16-bit samples keep
     /// their high byte, palettes and low bit depths are expanded, grey is copied to all
     /// three channels and alpha is dropped (not composited).
-    pub fn decode_png(bytes: &[u8]) -> Result<RgbImage, GradeError> {
+    ///
+    /// With `expected` (the scene's `width × height`), a PNG of another size is refused
+    /// from its header, before anything is decompressed: a small file cannot make the
+    /// grader allocate more than that frame needs.
+    pub fn decode_png(bytes: &[u8], expected: Option<(u32, u32)>) -> Result<RgbImage, GradeError> {
         if !bytes.starts_with(PNG_SIGNATURE) {
             return Err(GradeError::NotPng);
         }
-        let corrupt = |e: png::DecodingError| GradeError::CorruptPng(e.to_string());
-        let mut dec = png::Decoder::new(Cursor::new(bytes));
+        let limit = match expected {
+            // The widest legitimate layout: 16-bit RGBA, 8 bytes a pixel, plus row filters.
+            Some((w, h)) => (w as usize)
+                .saturating_mul(h as usize)
+                .saturating_mul(8)
+                .saturating_add(h as usize)
+                .saturating_add(1 << 20),
+            None => DEFAULT_DECODE_BYTES,
+        };
+        let corrupt = |e: png::DecodingError| match e {
+            png::DecodingError::LimitsExceeded => GradeError::CorruptPng(format!(
+                "decoding it would need more than {} MiB",
+                limit >> 20
+            )),
+            e => GradeError::CorruptPng(e.to_string()),
+        };
+        let mut dec =
+            png::Decoder::new_with_limits(Cursor::new(bytes), png::Limits { bytes: limit });
         dec.set_transformations(png::Transformations::normalize_to_color8());
         let mut reader = dec.read_info().map_err(corrupt)?;
+        if let Some((ew, eh)) = expected {
+            let (w, h) = reader.info().size();
+            if (w, h) != (ew, eh) {
+                return Err(GradeError::SizeMismatch {
+                    width: w,
+                    height: h,
+                    expected_width: ew,
+                    expected_height: eh,
+                });
+            }
+        }
         let size = reader
             .output_buffer_size()
-            .ok_or_else(|| GradeError::CorruptPng("the image is too large to decode".into()))?;
+            .filter(|&n| n <= limit)
+            .ok_or_else(|| {
+                GradeError::CorruptPng(format!(
+                    "decoding it would need more than {} MiB",
+                    limit >> 20
+                ))
+            })?;
         let mut buf = vec![0; size];
         let info = reader.next_frame(&mut buf).map_err(corrupt)?;
         buf.truncate(info.buffer_size());
@@ -152,6 +189,9 @@ impl RgbImage {
     }
 }
 
+/// Memory a PNG may take to decode when its expected size is not known.
+pub const DEFAULT_DECODE_BYTES: usize = 64 << 20;
+
 /// The eight bytes every PNG starts with.
 pub const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
 
@@ -177,7 +217,7 @@ mod tests {
             height: 1,
             data: vec![1, 2, 3, 250, 251, 252],
         };
-        assert_eq!(RgbImage::decode_png(&img.encode_png()).unwrap(), img);
+        assert_eq!(RgbImage::decode_png(&img.encode_png(), None).unwrap(), img);
     }
 
     #[test]
@@ -189,7 +229,10 @@ mod tests {
             png::BitDepth::Eight,
             &[9, 8, 7, 0],
         );
-        assert_eq!(RgbImage::decode_png(&rgba).unwrap().data, vec![9, 8, 7]);
+        assert_eq!(
+            RgbImage::decode_png(&rgba, None).unwrap().data,
+            vec![9, 8, 7]
+        );
         let grey = encode(
             2,
             1,
@@ -198,7 +241,7 @@ mod tests {
             &[5, 6],
         );
         assert_eq!(
-            RgbImage::decode_png(&grey).unwrap().data,
+            RgbImage::decode_png(&grey, None).unwrap().data,
             vec![5, 5, 5, 6, 6, 6]
         );
         let wide = encode(
@@ -209,7 +252,7 @@ mod tests {
             &[0x12, 0x34, 0xab, 0xcd, 0xff, 0xff],
         );
         assert_eq!(
-            RgbImage::decode_png(&wide).unwrap().data,
+            RgbImage::decode_png(&wide, None).unwrap().data,
             vec![0x12, 0xab, 0xff]
         );
         let bits = encode(
@@ -219,7 +262,7 @@ mod tests {
             png::BitDepth::One,
             &[0b1000_0001],
         );
-        let d = RgbImage::decode_png(&bits).unwrap().data;
+        let d = RgbImage::decode_png(&bits, None).unwrap().data;
         assert_eq!(&d[..3], &[255, 255, 255]);
         assert_eq!(&d[3..6], &[0, 0, 0]);
     }
@@ -227,7 +270,7 @@ mod tests {
     #[test]
     fn garbage_and_truncated_files_are_errors() {
         assert!(matches!(
-            RgbImage::decode_png(b"hello"),
+            RgbImage::decode_png(b"hello", None),
             Err(GradeError::NotPng)
         ));
         let img = RgbImage {
@@ -237,9 +280,49 @@ mod tests {
         };
         let png = img.encode_png();
         assert!(matches!(
-            RgbImage::decode_png(&png[..png.len() / 2]),
+            RgbImage::decode_png(&png[..png.len() / 2], None),
             Err(GradeError::CorruptPng(_))
         ));
+    }
+
+    #[test]
+    fn a_huge_header_is_refused_before_decoding() {
+        // A 1 × 1 image whose header is patched to claim 60000 × 60000 pixels.
+        let mut png = RgbImage {
+            width: 1,
+            height: 1,
+            data: vec![1, 2, 3],
+        }
+        .encode_png();
+        png[16..20].copy_from_slice(&60000u32.to_be_bytes());
+        png[20..24].copy_from_slice(&60000u32.to_be_bytes());
+        // Keep the chunk valid: CRC-32 of the type and data.
+        let mut crc = !0u32;
+        for &b in &png[12..29] {
+            crc ^= b as u32;
+            for _ in 0..8 {
+                crc = if crc & 1 != 0 {
+                    (crc >> 1) ^ 0xEDB8_8320
+                } else {
+                    crc >> 1
+                };
+            }
+        }
+        png[29..33].copy_from_slice(&(!crc).to_be_bytes());
+        let e = RgbImage::decode_png(&png, Some((1, 1))).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                GradeError::SizeMismatch {
+                    width: 60000,
+                    height: 60000,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        let e = RgbImage::decode_png(&png, None).unwrap_err();
+        assert!(e.to_string().contains("more than 64 MiB"), "{e}");
     }
 
     #[test]

@@ -139,6 +139,26 @@ impl Submission {
     /// content (PNG and NPY by their signatures, JSON by `{` or `[`, several JSON lines as
     /// NDJSON, else CSV with a header).
     pub fn parse(bytes: &[u8], hint: Hint) -> Result<Submission, GradeError> {
+        Submission::parse_impl(bytes, hint, None)
+    }
+
+    /// [`Submission::parse`] for a scene of `width × height` pixels: a PNG of another
+    /// size is refused from its header, before it is decompressed (what a server should
+    /// call; hit data is checked against the frame when graded).
+    pub fn parse_for_frame(
+        bytes: &[u8],
+        hint: Hint,
+        width: u32,
+        height: u32,
+    ) -> Result<Submission, GradeError> {
+        Submission::parse_impl(bytes, hint, Some((width, height)))
+    }
+
+    fn parse_impl(
+        bytes: &[u8],
+        hint: Hint,
+        frame: Option<(u32, u32)>,
+    ) -> Result<Submission, GradeError> {
         if bytes.iter().all(u8::is_ascii_whitespace) {
             return Err(GradeError::Empty);
         }
@@ -147,7 +167,7 @@ impl Submission {
             h => h,
         };
         match hint {
-            Hint::Png => RgbImage::decode_png(bytes).map(Submission::Image),
+            Hint::Png => RgbImage::decode_png(bytes, frame).map(Submission::Image),
             Hint::Json => parse_json(bytes).map(Submission::Hits),
             Hint::Ndjson => parse_ndjson(bytes).map(Submission::Hits),
             Hint::Npy => parse_npy(bytes).map(Submission::Hits),
