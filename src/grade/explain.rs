@@ -329,6 +329,8 @@ pub struct TriangleCheck {
     pub hit: bool,
     /// Whether it is the object's hit.
     pub counts: bool,
+    /// Why (not).
+    pub why: &'static str,
 }
 
 /// The chosen hit.
@@ -932,12 +934,22 @@ impl Explainer<'_> {
             if !t.hit {
                 misses_listed += 1;
             }
+            let why = match t.uvt {
+                None => "parallel to the triangle's plane",
+                Some(_) if counts => "the object's first hit",
+                Some([a, b, _]) if a < 0.0 || b < 0.0 || a + b > 1.0 => {
+                    "outside the triangle (u, v ≥ 0 and u + v ≤ 1 fail)"
+                }
+                Some([_, _, l]) if l <= t_min => "behind the ray's start (λ ≤ λmin)",
+                Some(_) => "farther than the object's first hit",
+            };
             triangles.push(TriangleCheck {
                 triangle: t.triangle,
                 barycentric: t.uvt.map(|[a, b, _]| [a, b]),
                 lambda: t.uvt.map(|[_, _, l]| l),
                 hit: t.hit,
                 counts,
+                why,
             });
         }
 
@@ -1317,24 +1329,18 @@ fn object_text(o: &mut String, t: &ObjectTest, ind: &str) {
                     num(a),
                     num(b),
                     num(l),
-                    if tr.counts {
-                        "the object's first hit"
-                    } else if tr.hit {
-                        "hit, farther"
-                    } else {
-                        "missed"
-                    }
+                    tr.why
                 );
             }
             _ => {
-                let _ = writeln!(o, "{ind}  triangle {}: parallel, missed", tr.triangle);
+                let _ = writeln!(o, "{ind}  triangle {}: {}", tr.triangle, tr.why);
             }
         }
     }
     if t.triangles_unlisted > 0 {
         let _ = writeln!(
             o,
-            "{ind}  … {} more triangles tested, all missed",
+            "{ind}  … {} more triangle tests, none the first hit",
             t.triangles_unlisted
         );
     }

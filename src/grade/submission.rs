@@ -448,11 +448,21 @@ fn parse_csv(bytes: &[u8]) -> Result<HitData, GradeError> {
         .from_reader(bytes);
     let csv_err = |e: csv::Error| {
         let line = e.position().map_or(0, |p| p.line() as usize);
+        let (column, message) = match e.kind() {
+            csv::ErrorKind::Utf8 { err, .. } => (err.field() + 1, "not UTF-8 text".to_owned()),
+            csv::ErrorKind::UnequalLengths {
+                expected_len, len, ..
+            } => (
+                0,
+                format!("a row has {len} fields but the header has {expected_len}"),
+            ),
+            _ => (0, e.to_string()),
+        };
         GradeError::Syntax {
             format: "CSV",
             line,
-            column: 0,
-            message: e.to_string(),
+            column,
+            message,
         }
     };
     let headers = rdr.headers().map_err(csv_err)?.clone();
@@ -822,8 +832,14 @@ fn parse_npy(bytes: &[u8]) -> Result<HitData, GradeError> {
         _ => return Err(npy("the header has no `descr`")),
     };
     let [h, w] = shape[..] else {
+        let dims: Vec<String> = shape.iter().map(i64::to_string).collect();
+        let tuple = if dims.len() == 1 {
+            format!("({},)", dims[0])
+        } else {
+            format!("({})", dims.join(", "))
+        };
         return Err(GradeError::WrongShape(format!(
-            "the NPY array has shape {shape:?}; hit data is an (h, w) array"
+            "the NPY array has shape {tuple}; hit data is an (h, w) array"
         )));
     };
     let (h, w) = match (u32::try_from(h), u32::try_from(w)) {
