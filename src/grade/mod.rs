@@ -1,5 +1,6 @@
 //! Autograding: comparing a student's submission with the reference rendered from the
-//! same scene ([`grade`]), and explaining one pixel's computation ([`explain`]).
+//! same scene ([`grade`]), and explaining one pixel's computation ([`explain()`], in
+//! [`mod@explain`]).
 //!
 //! ```text
 //! Submission::parse(bytes, hint) ──► grade(&renderer, submission, &tolerances, &options)
