@@ -1438,7 +1438,8 @@ mod tests {
             scene: &r.scene,
             world: &r.world,
         };
-        // Floor, mirror ball, glass ball, small ball, cube, column, cone, backdrop, gem, sky.
+        // Floor, mirror ball, glass ball, small ball, cube, column, cone, backdrop, gem, slab,
+        // sky and corners.
         for (u, v) in [
             (512, 700),
             (380, 380),
@@ -1448,7 +1449,8 @@ mod tests {
             (560, 300),
             (200, 400),
             (170, 260),
-            (330, 480),
+            (270, 409),
+            (743, 477),
             (512, 20),
             (0, 0),
             (1023, 767),
