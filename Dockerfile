@@ -14,6 +14,12 @@ FROM rust:1.95-slim-bookworm AS build
 SHELL ["/bin/bash", "-o", "pipefail", "-c"]
 WORKDIR /src
 
+# The grader's FLIP metric (the nv-flip crate) compiles NVIDIA's C++ reference
+# implementation; the slim image has a C compiler but no C++ one.
+RUN apt-get update \
+ && apt-get install -y --no-install-recommends g++=4:12.2.0-3 \
+ && rm -rf /var/lib/apt/lists/*
+
 # Dependencies get their own layer, keyed only on Cargo.toml and Cargo.lock: build them
 # against stub sources so that editing src/ does not recompile every crate.
 # Both stubs are needed (the crate is a library plus a binary); any other target that

@@ -4,6 +4,7 @@
 
 pub mod cli;
 pub mod geometry;
+pub mod grade;
 pub mod output;
 pub mod render;
 pub mod scene;

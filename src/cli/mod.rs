@@ -1,6 +1,7 @@
 //! The command line: `render`, `hits` and `validate` a scene file, and the server
 //! commands. Each subcommand lives in its own file; `main.rs` only calls [`run`].
 
+mod grade;
 mod local;
 
 use std::path::PathBuf;
@@ -27,6 +28,10 @@ pub enum Command {
     Hits(local::HitsArgs),
     /// Check a scene and list every problem with its JSON pointer.
     Validate(local::ValidateArgs),
+    /// Explain one pixel: its ray tree with every intermediate value of the lecture.
+    Trace(grade::TraceArgs),
+    /// Grade a submission (a PNG or hit data) against the scene's reference.
+    Grade(grade::GradeArgs),
 }
 
 /// Options shared by the commands that trace.
@@ -76,6 +81,8 @@ pub fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
         Some(Command::Render(a)) => local::render(a),
         Some(Command::Hits(a)) => local::hits(a),
         Some(Command::Validate(a)) => local::validate(a),
+        Some(Command::Trace(a)) => grade::trace(a),
+        Some(Command::Grade(a)) => grade::grade(a),
         None => anyhow::bail!("no command given: try `raytile --help`"),
     }
 }

@@ -49,3 +49,36 @@ pub fn decode_png(bytes: &[u8]) -> (u32, u32, Vec<u8>) {
     buf.truncate(info.buffer_size());
     (info.width, info.height, buf)
 }
+
+/// A shipped scene with its image resized to `w × h`, written to `dir` (small frames
+/// keep the grading tests quick).
+pub fn resized_scene(dir: &tempfile::TempDir, name: &str, w: u32, h: u32) -> PathBuf {
+    let bytes = std::fs::read(scene(name)).expect("a shipped scene");
+    let mut doc: serde_json::Value = serde_json::from_slice(&bytes).expect("JSON");
+    doc["image"]["width"] = w.into();
+    doc["image"]["height"] = h.into();
+    scene_file(dir, name, &doc)
+}
+
+/// Encodes 8-bit RGB pixels as a PNG.
+pub fn encode_png(w: u32, h: u32, rgb: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, w, h);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut wr = enc.write_header().expect("PNG header");
+    wr.write_image_data(rgb).expect("PNG data");
+    wr.finish().expect("PNG end");
+    out
+}
+
+/// Standard output parsed as JSON.
+pub fn stdout_json(out: &Output) -> serde_json::Value {
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "stdout is not JSON ({e}): {}\nstderr: {}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        )
+    })
+}

@@ -1,0 +1,291 @@
+//! `raytile trace` (explain one pixel) and `raytile grade` (grade a submission): thin
+//! wrappers over [`crate::grade`] that read files and write the result.
+//!
+//! `grade` exits 0 when the submission passes, 1 when it fails, and 2 (through `main`)
+//! with one line on standard error when it cannot be graded at all.
+
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Arc;
+
+use anyhow::Context;
+
+use super::local::load_scene;
+use crate::grade::explain::{self, Candidates, ExplainOptions};
+use crate::grade::{self, GradeOptions, Hint, Submission, Tolerances, report};
+use crate::render::Renderer;
+
+/// How `trace` prints.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum TraceFormat {
+    /// Laid out like the lecture's worked example.
+    Text,
+    /// The explanation as JSON.
+    Json,
+}
+
+/// Which objects `trace` lists for each ray.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum CandidatesArg {
+    /// All objects for scenes of at most 64 objects, else the BVH's candidates.
+    Auto,
+    /// Every object.
+    All,
+    /// Only objects whose bounding box the ray enters.
+    Bvh,
+}
+
+/// `raytile trace`.
+#[derive(Debug, clap::Args)]
+pub struct TraceArgs {
+    /// The scene file (JSON); `-` reads standard input.
+    scene: PathBuf,
+    /// The pixel to explain: `U,V` (column, row from the top left).
+    #[arg(long, value_parser = parse_pixel)]
+    pixel: (u32, u32),
+    /// Output format.
+    #[arg(long, value_enum, default_value_t = TraceFormat::Text)]
+    format: TraceFormat,
+    /// Which objects each ray is shown tested against.
+    #[arg(long, value_enum, default_value_t = CandidatesArg::Auto)]
+    candidates: CandidatesArg,
+    /// Most triangle tests listed per mesh and ray (hits are always listed).
+    #[arg(long, default_value_t = ExplainOptions::default().max_triangles)]
+    max_triangles: usize,
+    /// Most rays (primary, reflected, refracted) broken down.
+    #[arg(long, default_value_t = ExplainOptions::default().max_rays)]
+    max_rays: usize,
+}
+
+/// The report forms of `grade`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ReportFormat {
+    /// raytile's own JSON report.
+    Json,
+    /// Readable text.
+    Text,
+    /// Gradescope's `results.json`.
+    Gradescope,
+    /// PrairieLearn's results (under 1 MB, the difference image inline).
+    Prairielearn,
+}
+
+/// The submission forms `grade` reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SubmissionFormat {
+    /// Tell from the content.
+    Auto,
+    /// A PNG image.
+    Png,
+    /// Hit data as one JSON document.
+    Json,
+    /// Hit data as one JSON object per line.
+    Ndjson,
+    /// Hit data as a NumPy structured array.
+    Npy,
+    /// Hit data as CSV with a header.
+    Csv,
+}
+
+/// `raytile grade`.
+#[derive(Debug, clap::Args)]
+pub struct GradeArgs {
+    /// The scene file (JSON) the submission was rendered from.
+    scene: PathBuf,
+    /// The submission: a PNG, or hit data (.json, .ndjson, .npy, .csv); `-` reads
+    /// standard input.
+    submission: PathBuf,
+    /// The submission's format (default: by its extension, else by its content).
+    #[arg(long, value_enum)]
+    format: Option<SubmissionFormat>,
+    /// The report's form.
+    #[arg(long, value_enum, default_value_t = ReportFormat::Json)]
+    report: ReportFormat,
+    /// Write the report here instead of standard output.
+    #[arg(short, long)]
+    output: Option<PathBuf>,
+    /// Also write the difference image (failing pixels magenta) to this PNG.
+    #[arg(long)]
+    diff: Option<PathBuf>,
+    /// Put the difference image in the JSON report as `diff_png_base64`.
+    #[arg(long)]
+    inline_diff: bool,
+    /// How many of the worst pixels to list.
+    #[arg(long, default_value_t = GradeOptions::default().worst)]
+    worst: usize,
+    /// Tolerances from a JSON file (fields as in the report's `tolerances`); the
+    /// options below override it.
+    #[arg(long)]
+    tolerances: Option<PathBuf>,
+    /// Largest difference per colour channel, 0–255 (default 2).
+    #[arg(long, alias = "color-abs")]
+    colour_abs: Option<u8>,
+    /// Share of pixels that may fail, 0–1 (default 0.001).
+    #[arg(long)]
+    max_fail_share: Option<f64>,
+    /// Largest relative error of λ (default 1e-6).
+    #[arg(long)]
+    lambda_rel: Option<f64>,
+    /// Largest angle between normals, in degrees (default 0.1).
+    #[arg(long)]
+    normal_degrees: Option<f64>,
+    /// A pixel also passes when it matches a reference pixel of its 3 × 3 neighbourhood.
+    #[arg(long)]
+    edge_forgiving: bool,
+    /// Skip the FLIP metric (it is the slowest part on large images).
+    #[arg(long)]
+    no_flip: bool,
+    /// Points for a pass in the Gradescope report.
+    #[arg(long, default_value_t = 1.0)]
+    max_score: f64,
+    /// Rayon worker threads (default: one per core).
+    #[arg(long, env = "RAYTILE_THREADS")]
+    threads: Option<usize>,
+}
+
+/// Parses `U,V`.
+fn parse_pixel(s: &str) -> Result<(u32, u32), String> {
+    let (u, v) = s
+        .split_once(',')
+        .ok_or_else(|| format!("expected U,V (two whole numbers), got `{s}`"))?;
+    let n = |t: &str| {
+        t.trim()
+            .parse::<u32>()
+            .map_err(|_| format!("`{t}` is not a whole number ≥ 0"))
+    };
+    Ok((n(u)?, n(v)?))
+}
+
+fn renderer(scene: &Path) -> anyhow::Result<Renderer> {
+    Ok(Renderer::new(Arc::new(load_scene(scene)?)))
+}
+
+/// `raytile trace`.
+pub fn trace(a: TraceArgs) -> anyhow::Result<ExitCode> {
+    let r = renderer(&a.scene)?;
+    let (u, v) = a.pixel;
+    explain::check_pixel(&r, u, v)?;
+    let opts = ExplainOptions {
+        candidates: match a.candidates {
+            CandidatesArg::Auto => Candidates::Auto,
+            CandidatesArg::All => Candidates::All,
+            CandidatesArg::Bvh => Candidates::Bvh,
+        },
+        max_triangles: a.max_triangles,
+        max_rays: a.max_rays,
+    };
+    let e = explain::explain(&r, u, v, &opts);
+    let out = match a.format {
+        TraceFormat::Text => explain::to_text(&e),
+        TraceFormat::Json => serde_json::to_string_pretty(&e)? + "\n",
+    };
+    std::io::stdout().write_all(out.as_bytes())?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn tolerances(a: &GradeArgs) -> anyhow::Result<Tolerances> {
+    let mut t = match &a.tolerances {
+        Some(p) => {
+            let bytes = std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?;
+            serde_json::from_slice(&bytes)
+                .with_context(|| format!("{}: not a tolerances document", p.display()))?
+        }
+        None => Tolerances::default(),
+    };
+    if let Some(x) = a.colour_abs {
+        t.colour_abs = x;
+    }
+    if let Some(x) = a.max_fail_share {
+        t.max_fail_share = x;
+    }
+    if let Some(x) = a.lambda_rel {
+        t.lambda_rel = x;
+    }
+    if let Some(x) = a.normal_degrees {
+        t.normal_degrees = x;
+    }
+    t.edge_forgiving |= a.edge_forgiving;
+    t.check()?;
+    Ok(t)
+}
+
+/// `raytile grade`.
+pub fn grade(a: GradeArgs) -> anyhow::Result<ExitCode> {
+    let tol = tolerances(&a)?;
+    let r = renderer(&a.scene)?;
+    let bytes = if a.submission == Path::new("-") {
+        let mut b = Vec::new();
+        std::io::stdin()
+            .read_to_end(&mut b)
+            .context("cannot read the submission from standard input")?;
+        b
+    } else {
+        std::fs::read(&a.submission)
+            .with_context(|| format!("cannot read {}", a.submission.display()))?
+    };
+    let hint = match a.format {
+        None => Hint::from_path(&a.submission),
+        Some(SubmissionFormat::Auto) => Hint::Auto,
+        Some(SubmissionFormat::Png) => Hint::Png,
+        Some(SubmissionFormat::Json) => Hint::Json,
+        Some(SubmissionFormat::Ndjson) => Hint::Ndjson,
+        Some(SubmissionFormat::Npy) => Hint::Npy,
+        Some(SubmissionFormat::Csv) => Hint::Csv,
+    };
+    let what = a.submission.display();
+    let submission = Submission::parse_for_frame(&bytes, hint, r.scene.width, r.scene.height)
+        .with_context(|| format!("{what}"))?;
+    let opts = GradeOptions {
+        worst: a.worst,
+        inline_diff: a.inline_diff,
+        flip: !a.no_flip,
+        ..Default::default()
+    };
+    let pool = {
+        let mut b = rayon::ThreadPoolBuilder::new();
+        if let Some(n) = a.threads {
+            b = b.num_threads(n.max(1));
+        }
+        b.build().context("cannot start the worker threads")?
+    };
+    let rep = pool
+        .install(|| grade::grade(&r, submission, &tol, &opts))
+        .with_context(|| format!("{what}"))?;
+    if let Some(p) = &a.diff {
+        std::fs::write(p, rep.diff_png())
+            .with_context(|| format!("cannot write {}", p.display()))?;
+    }
+    let text = match a.report {
+        ReportFormat::Json => serde_json::to_string_pretty(&rep)? + "\n",
+        ReportFormat::Text => report::to_text(&rep),
+        ReportFormat::Gradescope => {
+            serde_json::to_string_pretty(&report::to_gradescope(&rep, a.max_score))? + "\n"
+        }
+        ReportFormat::Prairielearn => serde_json::to_string(&report::to_prairielearn(&rep))? + "\n",
+    };
+    match &a.output {
+        Some(p) => {
+            std::fs::write(p, text).with_context(|| format!("cannot write {}", p.display()))?
+        }
+        None => std::io::stdout().write_all(text.as_bytes())?,
+    }
+    Ok(if rep.pass {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pixels_parse() {
+        assert_eq!(parse_pixel("2,3"), Ok((2, 3)));
+        assert_eq!(parse_pixel(" 2 , 3 "), Ok((2, 3)));
+        assert!(parse_pixel("2").is_err());
+        assert!(parse_pixel("-1,2").is_err());
+    }
+}

@@ -1,0 +1,458 @@
+//! Autograding: comparing a student's submission with the reference rendered from the
+//! same scene ([`grade`]), and explaining one pixel's computation ([`explain()`], in
+//! [`mod@explain`]).
+//!
+//! ```text
+//! Submission::parse(bytes, hint) ──► grade(&renderer, submission, &tolerances, &options)
+//!        PNG │ JSON │ NDJSON │ NPY │ CSV            │ renders the reference (colour or hits)
+//!                                                  │ compares pixel by pixel (compare)
+//!                                                  │ error statistics (metrics)
+//!                                                  ▼
+//!                                   Report ──► JSON │ Gradescope │ PrairieLearn │ text
+//!                                          └─► difference image (PNG)
+//! ```
+//!
+//! Everything runs offline and in memory: the same calls serve the command line
+//! (`raytile grade`, `raytile trace`) and the HTTP handlers. A submission the grader
+//! cannot read is a [`GradeError`] saying what is wrong, never a panic.
+
+pub mod compare;
+pub mod explain;
+pub mod image;
+pub mod metrics;
+pub mod report;
+pub mod submission;
+
+use std::sync::Mutex;
+
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::Surface;
+use crate::render::{
+    Cancel, ColourKernel, DEFAULT_TILE_PX, HitKernel, Kernel, Rect, Renderer, SinkClosed, Stopped,
+    Tile, TileSink,
+};
+pub use explain::{ExplainOptions, Explanation, explain};
+pub use image::RgbImage;
+pub use report::Report;
+pub use submission::{Hint, Submission};
+
+/// When a submission passes. Every field has a default; unknown fields are an error.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Tolerances {
+    /// Largest absolute difference per colour channel, in 8-bit units (default 2).
+    #[serde(alias = "color_abs")]
+    pub colour_abs: u8,
+    /// Share of pixels allowed to fail, 0–1 (default 0.001, i.e. 0.1 %).
+    pub max_fail_share: f64,
+    /// Largest relative error of `λ`, `|λ − λref| / λref` (default 1e-6).
+    pub lambda_rel: f64,
+    /// Largest angle between the normals, in degrees (default 0.1).
+    pub normal_degrees: f64,
+    /// A pixel also passes when it matches any reference pixel of its 3 × 3
+    /// neighbourhood (default false).
+    pub edge_forgiving: bool,
+}
+
+impl Default for Tolerances {
+    fn default() -> Self {
+        Tolerances {
+            colour_abs: 2,
+            max_fail_share: 0.001,
+            lambda_rel: 1e-6,
+            normal_degrees: 0.1,
+            edge_forgiving: false,
+        }
+    }
+}
+
+impl Tolerances {
+    /// Checks the ranges: a share in `[0, 1]`, a non-negative `λ` tolerance, an angle in
+    /// `[0, 180]`.
+    pub fn check(&self) -> Result<(), GradeError> {
+        let bad = |field: &'static str, message: &str| {
+            Err(GradeError::BadTolerance {
+                field,
+                message: message.to_owned(),
+            })
+        };
+        if !(0.0..=1.0).contains(&self.max_fail_share) {
+            return bad("max_fail_share", "must be between 0 and 1");
+        }
+        if !(self.lambda_rel >= 0.0 && self.lambda_rel.is_finite()) {
+            return bad("lambda_rel", "must be a finite number ≥ 0");
+        }
+        if !(0.0..=180.0).contains(&self.normal_degrees) {
+            return bad("normal_degrees", "must be between 0 and 180");
+        }
+        Ok(())
+    }
+}
+
+/// What the report includes, and how the grading runs.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GradeOptions {
+    /// How many of the worst pixels to list (default 10).
+    pub worst: usize,
+    /// Include the difference image in the report as `diff_png_base64` (default false).
+    pub inline_diff: bool,
+    /// Compute FLIP for images (default true; it costs about as much as the SSIM).
+    pub flip: bool,
+    /// Stops rendering the reference (a deadline, a client that left).
+    #[serde(skip)]
+    pub cancel: Cancel,
+}
+
+impl Default for GradeOptions {
+    fn default() -> Self {
+        GradeOptions {
+            worst: 10,
+            inline_diff: false,
+            flip: true,
+            cancel: Cancel::new(),
+        }
+    }
+}
+
+/// Why a submission could not be graded. Everything but [`GradeError::Cancelled`] and
+/// [`GradeError::Reference`] is the submission's (or the caller's) fault.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GradeError {
+    /// The submission has no content.
+    #[error("the submission is empty")]
+    Empty,
+    /// The content is none of the accepted forms.
+    #[error(
+        "cannot tell what the submission is: it is not a PNG, nor hit data as JSON, NDJSON, NPY or CSV (with a header)"
+    )]
+    UnknownFormat,
+    /// A PNG was expected but the bytes are not one.
+    #[error("the submission is not a PNG file (it does not start with the PNG signature)")]
+    NotPng,
+    /// A PNG that cannot be decoded.
+    #[error("the PNG file is corrupt: {0}")]
+    CorruptPng(String),
+    /// The image or hit data is not the scene's size.
+    #[error(
+        "the submission is {width} × {height} pixels but the scene renders {expected_width} × {expected_height}"
+    )]
+    SizeMismatch {
+        /// Submitted width.
+        width: u32,
+        /// Submitted height.
+        height: u32,
+        /// The scene's width.
+        expected_width: u32,
+        /// The scene's height.
+        expected_height: u32,
+    },
+    /// JSON, NDJSON or CSV that does not parse (or has the wrong types).
+    #[error("the hit data is not valid {format}: {message} (line {line}, column {column})")]
+    Syntax {
+        /// `"JSON"`, `"NDJSON"` or `"CSV"`.
+        format: &'static str,
+        /// 1-based line.
+        line: usize,
+        /// 1-based column (0 when unknown).
+        column: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// Hit data whose layout is not an `(h, w)` grid of hit records.
+    #[error("the hit data has the wrong shape: {0}")]
+    WrongShape(String),
+    /// A required column or field is absent.
+    #[error("the hit data has no {what} `{field}` (needed: {needed})")]
+    MissingField {
+        /// `"CSV column"` or `"NPY field"`.
+        what: &'static str,
+        /// The missing name.
+        field: String,
+        /// What the format needs.
+        needed: &'static str,
+    },
+    /// A value that is not what its field needs.
+    #[error("{at}: {message}")]
+    BadValue {
+        /// Where: a JSON path, a CSV line and column.
+        at: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A malformed `.npy` file.
+    #[error("the NPY file is malformed: {0}")]
+    Npy(String),
+    /// A pixel outside the frame.
+    #[error("pixel ({u}, {v}) lies outside the {width} × {height} image")]
+    OutsideImage {
+        /// Column.
+        u: u32,
+        /// Row.
+        v: u32,
+        /// The scene's width.
+        width: u32,
+        /// The scene's height.
+        height: u32,
+    },
+    /// A pixel given twice.
+    #[error("pixel ({u}, {v}) appears more than once")]
+    DuplicatePixel {
+        /// Column.
+        u: u32,
+        /// Row.
+        v: u32,
+    },
+    /// Pixels of the frame that the hit data does not cover.
+    #[error("{count} pixel(s) of the image are missing from the hit data, the first is ({u}, {v})")]
+    MissingPixels {
+        /// How many.
+        count: u64,
+        /// Column of the first.
+        u: u32,
+        /// Row of the first.
+        v: u32,
+    },
+    /// A tolerance out of range.
+    #[error("the tolerance `{field}` {message}")]
+    BadTolerance {
+        /// Which.
+        field: &'static str,
+        /// The range it must be in.
+        message: String,
+    },
+    /// The grading was cancelled before the reference was rendered.
+    #[error("the grading was cancelled")]
+    Cancelled,
+    /// The reference could not be rendered (not the submission's fault).
+    #[error("the reference could not be rendered: {0}")]
+    Reference(String),
+}
+
+/// Collects a whole frame's pixels, row-major, from tiles in any order.
+struct FrameSink<T> {
+    width: u32,
+    pixels: Mutex<Vec<T>>,
+}
+
+impl<T: Send + Clone> TileSink<T> for FrameSink<T> {
+    fn tile(&self, tile: Tile<T>) -> Result<(), SinkClosed> {
+        let mut px = self
+            .pixels
+            .lock()
+            .map_err(|_| SinkClosed("a worker panicked".into()))?;
+        let r = tile.rect;
+        for (k, p) in tile.pixels.into_iter().enumerate() {
+            let (u, v) = (r.x + k as u32 % r.width, r.y + k as u32 / r.width);
+            if let Some(slot) = px.get_mut(v as usize * self.width as usize + u as usize) {
+                *slot = p;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Traces the whole frame with `kernel` on the current rayon pool, row-major.
+pub fn render_frame<K: Kernel>(
+    kernel: &K,
+    width: u32,
+    height: u32,
+    cancel: &Cancel,
+) -> Result<Vec<K::Pixel>, GradeError>
+where
+    K::Pixel: Clone + Default,
+{
+    let sink = FrameSink {
+        width,
+        pixels: Mutex::new(vec![K::Pixel::default(); width as usize * height as usize]),
+    };
+    crate::render::run(
+        kernel,
+        Rect::frame(width, height),
+        DEFAULT_TILE_PX,
+        cancel,
+        &sink,
+    )
+    .map_err(|e| match e {
+        Stopped::Cancelled => GradeError::Cancelled,
+        Stopped::Sink(s) => GradeError::Reference(s.to_string()),
+    })?;
+    sink.pixels
+        .into_inner()
+        .map_err(|_| GradeError::Reference("a worker panicked".into()))
+}
+
+/// The reference image, exactly as `raytile render` writes it.
+pub fn reference_image(r: &Renderer, cancel: &Cancel) -> Result<RgbImage, GradeError> {
+    let (w, h) = (r.scene.width, r.scene.height);
+    let px = render_frame(&ColourKernel(r), w, h, cancel)?;
+    Ok(RgbImage::from_pixels(w, h, &px))
+}
+
+/// The reference hit data, exactly as `raytile hits` writes it.
+pub fn reference_hits(r: &Renderer, cancel: &Cancel) -> Result<Vec<Option<Surface>>, GradeError> {
+    render_frame(&HitKernel(r), r.scene.width, r.scene.height, cancel)
+}
+
+impl submission::HitData {
+    /// Places every pixel in a `w × h` frame, row-major: explicit `u`, `v` where given,
+    /// else row-major over the group's rectangle (or the frame). Every pixel must be
+    /// given exactly once.
+    pub fn place(&self, w: u32, h: u32) -> Result<Vec<submission::SubmittedHit>, GradeError> {
+        if let Some((sw, sh)) = self.size
+            && (sw, sh) != (w, h)
+        {
+            return Err(GradeError::SizeMismatch {
+                width: sw,
+                height: sh,
+                expected_width: w,
+                expected_height: h,
+            });
+        }
+        let n = w as usize * h as usize;
+        let mut out: Vec<Option<submission::SubmittedHit>> = vec![None; n];
+        for g in &self.groups {
+            let rect = g.rect.unwrap_or(Rect::frame(w, h));
+            for (k, p) in g.pixels.iter().enumerate() {
+                let (u, v) = match (p.u, p.v) {
+                    (Some(u), Some(v)) => (u, v),
+                    _ if rect.width == 0 => {
+                        return Err(GradeError::WrongShape("a group has width 0".into()));
+                    }
+                    _ => (
+                        rect.x.saturating_add(k as u32 % rect.width),
+                        rect.y.saturating_add((k / rect.width as usize) as u32),
+                    ),
+                };
+                if u >= w || v >= h {
+                    return Err(GradeError::OutsideImage {
+                        u,
+                        v,
+                        width: w,
+                        height: h,
+                    });
+                }
+                let slot = &mut out[v as usize * w as usize + u as usize];
+                if slot.is_some() {
+                    return Err(GradeError::DuplicatePixel { u, v });
+                }
+                *slot = Some(*p);
+            }
+        }
+        let missing = out.iter().filter(|p| p.is_none()).count() as u64;
+        if let Some(first) = out.iter().position(Option::is_none) {
+            return Err(GradeError::MissingPixels {
+                count: missing,
+                u: (first % w as usize) as u32,
+                v: (first / w as usize) as u32,
+            });
+        }
+        Ok(out.into_iter().flatten().collect())
+    }
+}
+
+/// Grades a submission against the scene's reference: renders the reference (the image,
+/// or the hit data), compares pixel by pixel under `tol`, and reports.
+pub fn grade(
+    r: &Renderer,
+    submission: Submission,
+    tol: &Tolerances,
+    opts: &GradeOptions,
+) -> Result<Report, GradeError> {
+    tol.check()?;
+    let (w, h) = (r.scene.width, r.scene.height);
+    match submission {
+        Submission::Image(img) => {
+            if (img.width, img.height) != (w, h) {
+                return Err(GradeError::SizeMismatch {
+                    width: img.width,
+                    height: img.height,
+                    expected_width: w,
+                    expected_height: h,
+                });
+            }
+            let reference = reference_image(r, &opts.cancel)?;
+            let cmp = compare::images(&reference, &img, tol, opts.worst);
+            let image = report::ImageMetrics {
+                errors: metrics::error_stats(&reference, &img),
+                ssim: metrics::ssim(&reference, &img),
+                flip: opts.flip.then(|| metrics::flip(&reference, &img)),
+            };
+            Ok(Report::new("png", w, h, tol, opts, cmp, Some(image)))
+        }
+        Submission::Hits(data) => {
+            let placed = data.place(w, h)?;
+            let reference = reference_hits(r, &opts.cancel)?;
+            let cmp = compare::hits(&reference, &placed, w, h, tol, opts.worst);
+            Ok(Report::new(data.format, w, h, tol, opts, cmp, None))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use submission::{Group, HitData, SubmittedHit};
+
+    #[test]
+    fn tolerances_refuse_unknown_fields_and_bad_ranges() {
+        let t: Tolerances = serde_json::from_str(r#"{"color_abs": 5}"#).unwrap();
+        assert_eq!(t.colour_abs, 5);
+        assert_eq!(t.max_fail_share, 0.001);
+        assert!(serde_json::from_str::<Tolerances>(r#"{"colour": 5}"#).is_err());
+        let t = Tolerances {
+            max_fail_share: 2.0,
+            ..Default::default()
+        };
+        assert!(t.check().is_err());
+        let t = Tolerances {
+            lambda_rel: f64::NAN,
+            ..Default::default()
+        };
+        assert!(t.check().is_err());
+    }
+
+    fn data(pixels: Vec<SubmittedHit>, rect: Option<Rect>) -> HitData {
+        HitData {
+            format: "json",
+            size: None,
+            groups: vec![Group { rect, pixels }],
+        }
+    }
+
+    #[test]
+    fn placing_pixels() {
+        let miss = SubmittedHit::default();
+        let at = |u, v| SubmittedHit {
+            u: Some(u),
+            v: Some(v),
+            ..miss
+        };
+        assert_eq!(data(vec![miss; 4], None).place(2, 2).unwrap().len(), 4);
+        assert!(matches!(
+            data(vec![miss; 3], None).place(2, 2),
+            Err(GradeError::MissingPixels {
+                count: 1,
+                u: 1,
+                v: 1
+            })
+        ));
+        assert!(matches!(
+            data(vec![at(0, 0), at(0, 0)], None).place(2, 1),
+            Err(GradeError::DuplicatePixel { u: 0, v: 0 })
+        ));
+        assert!(matches!(
+            data(vec![at(2, 0)], None).place(2, 1),
+            Err(GradeError::OutsideImage { .. })
+        ));
+        let sized = HitData {
+            size: Some((3, 3)),
+            ..data(vec![], None)
+        };
+        assert!(matches!(
+            sized.place(2, 2),
+            Err(GradeError::SizeMismatch { .. })
+        ));
+    }
+}
