@@ -34,6 +34,8 @@ enum Kind {
 struct Solid {
     /// `object_from_world`, the map every ray takes into object space.
     object_from_world: DAffine3,
+    /// The viewpoint in object space (see [`World::set_viewpoint`]).
+    view_origin: DVec3,
     kind: Kind,
 }
 
@@ -54,6 +56,8 @@ pub struct World {
     bvh: Bvh,
     /// Objects without bounds (planes), in scene order.
     unbounded: Vec<u32>,
+    /// A point many rays start from (the camera), carried into every object's space once.
+    viewpoint: Option<DVec3>,
 }
 
 impl World {
@@ -108,6 +112,7 @@ impl World {
             }
             solids.push(Solid {
                 object_from_world: t.inverse,
+                view_origin: DVec3::ZERO,
                 kind,
             });
             placements.push(Placement {
@@ -121,6 +126,7 @@ impl World {
             solids,
             placements,
             unbounded,
+            viewpoint: None,
         }
     }
 
@@ -134,6 +140,16 @@ impl World {
         self.solids.is_empty()
     }
 
+    /// Declares the point most rays start from (the camera). Each object keeps it in
+    /// object space, so a ray from there is carried into the object by its direction
+    /// alone; the origin is the same `object_from_world · o` either way, bit for bit.
+    pub fn set_viewpoint(&mut self, o: DVec3) {
+        for s in &mut self.solids {
+            s.view_origin = s.object_from_world.transform_point3(o);
+        }
+        self.viewpoint = Some(o);
+    }
+
     /// Tests object `i` alone: `λ` in `(t_min, t_max)` and the part hit.
     #[inline]
     pub fn intersect_object<P: Probe>(
@@ -144,8 +160,35 @@ impl World {
         t_max: f64,
         probe: &mut P,
     ) -> Option<(f64, u32)> {
+        self.intersect_object_from(
+            i,
+            ray,
+            self.viewpoint == Some(ray.origin),
+            t_min,
+            t_max,
+            probe,
+        )
+    }
+
+    #[inline(always)]
+    fn intersect_object_from<P: Probe>(
+        &self,
+        i: u32,
+        ray: &Ray,
+        from_view: bool,
+        t_min: f64,
+        t_max: f64,
+        probe: &mut P,
+    ) -> Option<(f64, u32)> {
         let s = &self.solids[i as usize];
-        let r = ray.transformed(&s.object_from_world);
+        let r = if from_view {
+            Ray {
+                origin: s.view_origin,
+                dir: s.object_from_world.transform_vector3(ray.dir),
+            }
+        } else {
+            ray.transformed(&s.object_from_world)
+        };
         if probe.active() {
             probe.object(i, &r);
         }
@@ -176,10 +219,11 @@ impl World {
         probe: &mut P,
     ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
+        let from_view = self.viewpoint == Some(ray.origin);
         let mut consider = |i: u32, limit: f64, probe: &mut P| -> f64 {
             // `next_up` lets an equal λ through, so the tie rule can see it.
             if let Some((lambda, part)) =
-                self.intersect_object(i, ray, t_min, limit.next_up(), probe)
+                self.intersect_object_from(i, ray, from_view, t_min, limit.next_up(), probe)
             {
                 let h = Hit {
                     lambda,

@@ -32,8 +32,9 @@ pub struct Renderer {
 impl Renderer {
     /// Builds the acceleration structure (the "build" phase).
     pub fn new(scene: Arc<Scene>) -> Renderer {
-        let world = scene.world();
+        let mut world = scene.world();
         let camera = PrimaryRays::new(&scene);
+        world.set_viewpoint(camera.origin());
         Renderer {
             scene,
             world,
