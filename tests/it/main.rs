@@ -5,6 +5,7 @@
 //! - `geometry`: shapes under transforms against hand-computed answers;
 //! - `lecture`: the lecture's worked example;
 //! - `properties`: BVH against brute force, invariance, determinism, regions;
+//! - `schema`: the JSON Schema and the parser agree;
 //! - `validation`: every class of bad document, with its pointer.
 
 mod support;
@@ -14,4 +15,5 @@ mod geometry;
 mod grade;
 mod lecture;
 mod properties;
+mod schema;
 mod validation;
