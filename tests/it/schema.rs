@@ -33,12 +33,15 @@ fn every_shipped_scene_passes_the_schema_and_the_parser() {
     assert!(n >= 9, "expected the example scenes, found {n}");
 }
 
+/// A change that makes a document break the format.
+type Edit = Box<dyn Fn(&mut Value)>;
+
 #[test]
 fn format_violations_fail_both() {
     let v = schema();
     let base = json!({"version": 1, "image": {"width": 4, "height": 4},
         "objects": [{"shape": "sphere"}], "lights": [{"type": "point", "position": [0, 0, 0], "colour": [1, 1, 1]}]});
-    let cases: Vec<(&str, Box<dyn Fn(&mut Value)>)> = vec![
+    let cases: Vec<(&str, Edit)> = vec![
         (
             "unknown top-level field",
             Box::new(|d| d["extra"] = json!(1)),
