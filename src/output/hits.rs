@@ -118,7 +118,10 @@ pub struct HitSink<'s, W: Write + Send> {
 
 struct HitState<W> {
     out: W,
+    /// Rows of surfaces, for JSON.
     rows: RowAssembler<Option<Surface>>,
+    /// Rows of encoded records, for NPY.
+    records: RowAssembler<[u8; NPY_RECORD_BYTES]>,
     buf: Vec<u8>,
     first: bool,
 }
@@ -151,6 +154,7 @@ impl<'s, W: Write + Send> HitSink<'s, W> {
             state: Mutex::new(HitState {
                 out,
                 rows: RowAssembler::new(region, tile_px),
+                records: RowAssembler::new(region, tile_px),
                 buf: Vec::new(),
                 first: true,
             }),
@@ -163,7 +167,12 @@ impl<'s, W: Write + Send> HitSink<'s, W> {
             .state
             .into_inner()
             .map_err(|_| io::Error::other("a worker panicked while writing"))?;
-        if self.format != HitFormat::Ndjson && !s.rows.is_complete() {
+        let complete = match self.format {
+            HitFormat::Json => s.rows.is_complete(),
+            HitFormat::Npy => s.records.is_complete(),
+            HitFormat::Ndjson => true,
+        };
+        if !complete {
             return Err(io::Error::other("the hit data is incomplete"));
         }
         if self.format == HitFormat::Json {
@@ -204,6 +213,7 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<'_, W> {
                     rows,
                     buf,
                     first,
+                    ..
                 } = &mut *guard;
                 let x0 = rows.region().x;
                 rows.push(tile, |v, segments| {
@@ -224,17 +234,34 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<'_, W> {
                 .map_err(closed)
             }
             HitFormat::Npy => {
+                // Encode outside the lock, so workers only queue for the copy and write.
+                let r = tile.rect;
+                let records = tile
+                    .pixels
+                    .iter()
+                    .enumerate()
+                    .map(|(k, s)| {
+                        npy_record_bytes(r.x + k as u32 % r.width, r.y + k as u32 / r.width, s)
+                    })
+                    .collect();
+                let encoded = Tile {
+                    rect: r,
+                    pixels: records,
+                    rays: tile.rays,
+                };
                 let mut guard = self.state.lock().map_err(closed)?;
-                let HitState { out, rows, buf, .. } = &mut *guard;
-                let x0 = rows.region().x;
-                rows.push(tile, |v, segments| {
-                    buf.clear();
-                    for (k, s) in segments.iter().flat_map(|s| s.iter()).enumerate() {
-                        npy_record(buf, x0 + k as u32, v, s);
-                    }
-                    out.write_all(buf)
-                })
-                .map_err(closed)
+                let HitState {
+                    out, records, buf, ..
+                } = &mut *guard;
+                records
+                    .push(encoded, |_, segments| {
+                        buf.clear();
+                        for seg in segments {
+                            buf.extend(seg.iter().flatten());
+                        }
+                        out.write_all(buf)
+                    })
+                    .map_err(closed)
             }
         }
     }
@@ -264,6 +291,12 @@ pub fn npy_header(h: u32, w: u32) -> Vec<u8> {
 /// Appends one record: a miss has `object = −1`, NaN vectors and an empty face.
 #[inline]
 pub fn npy_record(buf: &mut Vec<u8>, u: u32, v: u32, s: &Option<Surface>) {
+    buf.extend_from_slice(&npy_record_bytes(u, v, s));
+}
+
+/// One record's bytes.
+#[inline]
+pub fn npy_record_bytes(u: u32, v: u32, s: &Option<Surface>) -> [u8; NPY_RECORD_BYTES] {
     let mut r = [0u8; NPY_RECORD_BYTES];
     r[0..4].copy_from_slice(&(u as i32).to_le_bytes());
     r[4..8].copy_from_slice(&(v as i32).to_le_bytes());
@@ -285,7 +318,7 @@ pub fn npy_record(buf: &mut Vec<u8>, u: u32, v: u32, s: &Option<Surface>) {
         r[93] = b[0];
         r[97] = b[1];
     }
-    buf.extend_from_slice(&r);
+    r
 }
 
 #[cfg(test)]
