@@ -1,7 +1,9 @@
 //! The command line: `render`, `hits` and `validate` a scene file, and the server
-//! commands. Each subcommand lives in its own file; `main.rs` only calls [`run`].
+//! commands `serve` (the default) and `healthcheck`. The subcommands live in their own
+//! files; `main.rs` only calls [`run`].
 
 mod local;
+mod serve;
 
 use std::path::PathBuf;
 
@@ -27,6 +29,10 @@ pub enum Command {
     Hits(local::HitsArgs),
     /// Check a scene and list every problem with its JSON pointer.
     Validate(local::ValidateArgs),
+    /// Serve the HTTP API (the default when no command is given).
+    Serve(crate::config::ServeArgs),
+    /// Probe a running server's `/healthz`: exit 0 when it answers 200, 1 otherwise.
+    Healthcheck(serve::HealthcheckArgs),
 }
 
 /// Options shared by the commands that trace.
@@ -76,6 +82,9 @@ pub fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
         Some(Command::Render(a)) => local::render(a),
         Some(Command::Hits(a)) => local::hits(a),
         Some(Command::Validate(a)) => local::validate(a),
-        None => anyhow::bail!("no command given: try `raytile --help`"),
+        Some(Command::Serve(a)) => serve::serve(a),
+        Some(Command::Healthcheck(a)) => serve::healthcheck(a),
+        // No command: serve, configured by the environment alone.
+        None => serve::serve(crate::config::ServeArgs::from_env().map_err(|e| e.exit())?),
     }
 }
