@@ -53,8 +53,8 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYTILE_MAX_BODY_BYTES", default_value_t = DEFAULT_MAX_BODY_BYTES)]
     pub max_body_bytes: usize,
 
-    /// Renders tracing at once (default: one per core). Each uses every rayon thread,
-    /// so more than the core count only adds latency.
+    /// Renders admitted to trace at once (default: one per core); they share the rayon
+    /// threads, so more only adds latency to each.
     #[arg(long, env = "RAYTILE_MAX_RENDERS", value_parser = clap::value_parser!(u32).range(1..))]
     pub max_renders: Option<u32>,
 

@@ -52,6 +52,9 @@ pub struct Metrics {
     pub rejected: IntCounterVec,
 }
 
+/// The `reason` labels of `raytile_rejected_requests_total`.
+pub const REJECT_REASONS: [&str; 3] = ["saturated", "shutting_down", "deadline"];
+
 /// Render durations from 10 ms to about 10 minutes.
 const DURATION_BUCKETS_SECONDS: [f64; 14] = [
     0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0, 180.0, 600.0,
@@ -94,6 +97,11 @@ impl Metrics {
             "raytile_queue_capacity",
             "Requests allowed to wait for a render slot.",
         )?;
+        // Export every reason from the start, at 0, so that rates and alerts work
+        // before the first refusal.
+        for reason in REJECT_REASONS {
+            rejected.with_label_values(&[reason]);
+        }
         slots.set(render_slots as i64);
         capacity.set(queue_capacity as i64);
         registry.register(Box::new(requests.clone()))?;
