@@ -2,9 +2,19 @@
 //! split into tiles traced on all cores, with outputs that stream.
 #![forbid(unsafe_code)]
 
+/// The command line: render, hits, validate, serve, healthcheck.
 pub mod cli;
+/// The server's configuration (flags and environment).
+pub mod config;
+/// Rays, transforms, shapes, the BVH and hit records.
 pub mod geometry;
+/// Autograding: explain a pixel, grade a submission against the reference.
 pub mod grade;
+/// Sinks that stream PNG and hit data while tiles trace.
 pub mod output;
+/// The camera, Whitted shading and the tile loop.
 pub mod render;
+/// The scene document and its validation.
 pub mod scene;
+/// The HTTP service on axum and tokio.
+pub mod server;

@@ -1,8 +1,10 @@
 //! The command line: `render`, `hits` and `validate` a scene file, and the server
-//! commands. Each subcommand lives in its own file; `main.rs` only calls [`run`].
+//! commands `serve` (the default) and `healthcheck`. The subcommands live in their own
+//! files; `main.rs` only calls [`run`].
 
 mod grade;
 mod local;
+mod serve;
 
 use std::path::PathBuf;
 
@@ -32,6 +34,10 @@ pub enum Command {
     Trace(grade::TraceArgs),
     /// Grade a submission (a PNG or hit data) against the scene's reference.
     Grade(grade::GradeArgs),
+    /// Serve the HTTP API (the default when no command is given).
+    Serve(crate::config::ServeArgs),
+    /// Probe a running server's `/healthz`: exit 0 when it answers 200, 1 otherwise.
+    Healthcheck(serve::HealthcheckArgs),
 }
 
 /// Options shared by the commands that trace.
@@ -83,6 +89,9 @@ pub fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
         Some(Command::Validate(a)) => local::validate(a),
         Some(Command::Trace(a)) => grade::trace(a),
         Some(Command::Grade(a)) => grade::grade(a),
-        None => anyhow::bail!("no command given: try `raytile --help`"),
+        Some(Command::Serve(a)) => serve::serve(a),
+        Some(Command::Healthcheck(a)) => serve::healthcheck(a),
+        // No command: serve, configured by the environment alone.
+        None => serve::serve(crate::config::ServeArgs::from_env().map_err(|e| e.exit())?),
     }
 }

@@ -1,19 +1,26 @@
 //! The integration tests, one binary. Modules:
 //! - `support`: helpers (the built binary, scene files, temporary outputs);
+//! - `support_server`: a `TestApp` (the real router on a loopback port), scene makers;
 //! - `cli`: `raytile render | hits | validate` as a user runs them;
 //! - `grade`: `raytile trace | grade` as an instructor runs them;
 //! - `geometry`: shapes under transforms against hand-computed answers;
 //! - `lecture`: the lecture's worked example;
 //! - `properties`: BVH against brute force, invariance, determinism, regions;
 //! - `schema`: the JSON Schema and the parser agree;
+//! - `openapi`: `api/openapi.yaml` and the server agree;
+//! - `server`: the HTTP service as a client sees it, and the binary's `serve` and
+//!   `healthcheck`;
 //! - `validation`: every class of bad document, with its pointer.
 
 mod support;
+mod support_server;
 
 mod cli;
 mod geometry;
 mod grade;
 mod lecture;
+mod openapi;
 mod properties;
 mod schema;
+mod server;
 mod validation;

@@ -1,0 +1,187 @@
+//! The server's configuration: one clap struct, every setting a flag with a matching
+//! environment variable (`--max-renders` / `RAYTILE_MAX_RENDERS`), so the same binary is
+//! configured by hand on a laptop and by the environment in a container.
+//!
+//! Defaults are for one replica on one machine: a render slot per core, a short queue, a
+//! generous deadline, and the scene limits of [`crate::scene::Limits::default`].
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use crate::render::DEFAULT_TILE_PX;
+use crate::scene::Limits;
+
+/// Where the server listens unless told otherwise.
+pub const DEFAULT_ADDR: &str = "0.0.0.0:8080";
+/// The largest request body: 16 MiB (a scene with large inline meshes).
+pub const DEFAULT_MAX_BODY_BYTES: usize = 16 * 1024 * 1024;
+/// Requests that may wait for a render slot before the next one is refused.
+pub const DEFAULT_QUEUE: usize = 16;
+/// How long a request may take, from its first byte in to its last byte out.
+pub const DEFAULT_DEADLINE_SECONDS: f64 = 300.0;
+/// How long in-flight responses may run on after SIGTERM.
+pub const DEFAULT_GRACE_SECONDS: f64 = 25.0;
+
+/// `raytile serve`: the HTTP service (SPEC §6–7).
+#[derive(Debug, Clone, clap::Args)]
+pub struct ServeArgs {
+    /// Address and port to listen on (port 0 picks a free one).
+    #[arg(long, env = "RAYTILE_ADDR", default_value = DEFAULT_ADDR)]
+    pub addr: SocketAddr,
+
+    /// Largest image, in pixels (width × height of the full frame).
+    #[arg(long, env = "RAYTILE_MAX_PIXELS", default_value_t = Limits::default().max_pixels)]
+    pub max_pixels: u64,
+
+    /// Largest `image.samples` (a pixel traces samples² rays).
+    #[arg(long, env = "RAYTILE_MAX_SAMPLES", default_value_t = Limits::default().max_samples)]
+    pub max_samples: u32,
+
+    /// Largest `max_depth` (reflection and refraction recursion).
+    #[arg(long, env = "RAYTILE_MAX_DEPTH", default_value_t = Limits::default().max_depth)]
+    pub max_depth: u32,
+
+    /// Most objects in a scene.
+    #[arg(long, env = "RAYTILE_MAX_OBJECTS", default_value_t = Limits::default().max_objects)]
+    pub max_objects: u64,
+
+    /// Most mesh triangles in a scene, over all meshes.
+    #[arg(long, env = "RAYTILE_MAX_TRIANGLES", default_value_t = Limits::default().max_triangles)]
+    pub max_triangles: u64,
+
+    /// Largest request body in bytes; larger ones get 413.
+    #[arg(long, env = "RAYTILE_MAX_BODY_BYTES", default_value_t = DEFAULT_MAX_BODY_BYTES)]
+    pub max_body_bytes: usize,
+
+    /// Renders admitted to trace at once (default: one per core); they share the rayon
+    /// threads, so more only adds latency to each.
+    #[arg(long, env = "RAYTILE_MAX_RENDERS", value_parser = clap::value_parser!(u32).range(1..))]
+    pub max_renders: Option<u32>,
+
+    /// Requests allowed to wait for a render slot; past that, 503 at once.
+    #[arg(long, env = "RAYTILE_QUEUE", default_value_t = DEFAULT_QUEUE)]
+    pub queue: usize,
+
+    /// Seconds a request may take in all (fractions allowed). Past it before the first
+    /// byte: 504; after the first byte the stream is cut.
+    #[arg(long, env = "RAYTILE_DEADLINE_SECONDS", default_value_t = DEFAULT_DEADLINE_SECONDS, value_parser = parse_seconds)]
+    pub deadline_seconds: f64,
+
+    /// Rayon worker threads that trace (default: one per core).
+    #[arg(long, env = "RAYTILE_THREADS", value_parser = clap::value_parser!(u32).range(1..))]
+    pub threads: Option<u32>,
+
+    /// Seconds in-flight responses may run on after SIGTERM or Ctrl-C before they are cut.
+    #[arg(long, env = "RAYTILE_GRACE_SECONDS", default_value_t = DEFAULT_GRACE_SECONDS, value_parser = parse_seconds)]
+    pub grace_seconds: f64,
+
+    /// Tile edge in pixels.
+    #[arg(long, env = "RAYTILE_TILE", default_value_t = DEFAULT_TILE_PX, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub tile: u32,
+
+    /// Log format: `text` for people, `json` for log collectors.
+    #[arg(long, env = "RAYTILE_LOG_FORMAT", default_value = "text", value_parser = ["text", "json"])]
+    pub log_format: String,
+}
+
+impl Default for ServeArgs {
+    /// The defaults of every flag, ignoring the environment (tests start from these).
+    fn default() -> Self {
+        let limits = Limits::default();
+        ServeArgs {
+            addr: DEFAULT_ADDR
+                .parse()
+                .unwrap_or_else(|_| ([0, 0, 0, 0], 8080).into()),
+            max_pixels: limits.max_pixels,
+            max_samples: limits.max_samples,
+            max_depth: limits.max_depth,
+            max_objects: limits.max_objects,
+            max_triangles: limits.max_triangles,
+            max_body_bytes: DEFAULT_MAX_BODY_BYTES,
+            max_renders: None,
+            queue: DEFAULT_QUEUE,
+            deadline_seconds: DEFAULT_DEADLINE_SECONDS,
+            threads: None,
+            grace_seconds: DEFAULT_GRACE_SECONDS,
+            tile: DEFAULT_TILE_PX,
+            log_format: "text".into(),
+        }
+    }
+}
+
+impl ServeArgs {
+    /// The configuration from the environment alone (for `raytile` with no command).
+    pub fn from_env() -> Result<ServeArgs, clap::Error> {
+        #[derive(clap::Parser)]
+        struct Env {
+            #[command(flatten)]
+            args: ServeArgs,
+        }
+        <Env as clap::Parser>::try_parse_from(["raytile"]).map(|e| e.args)
+    }
+
+    /// The scene limits that requests are checked against.
+    pub fn limits(&self) -> Limits {
+        Limits {
+            max_pixels: self.max_pixels,
+            max_samples: self.max_samples,
+            max_depth: self.max_depth,
+            max_objects: self.max_objects,
+            max_triangles: self.max_triangles,
+        }
+    }
+
+    /// Renders tracing at once: the flag, or the number of cores.
+    pub fn max_renders(&self) -> usize {
+        self.max_renders.map_or_else(cores, |n| n as usize)
+    }
+
+    /// Rayon threads: the flag, or the number of cores.
+    pub fn threads(&self) -> usize {
+        self.threads.map_or_else(cores, |n| n as usize)
+    }
+
+    /// The per-request deadline.
+    pub fn deadline(&self) -> Duration {
+        Duration::from_secs_f64(self.deadline_seconds)
+    }
+
+    /// The shutdown grace period.
+    pub fn grace(&self) -> Duration {
+        Duration::from_secs_f64(self.grace_seconds)
+    }
+}
+
+/// The cores this process may use.
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// Seconds as a positive, finite number (`300`, `0.5`), at most a year.
+fn parse_seconds(s: &str) -> Result<f64, String> {
+    let x: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number of seconds"))?;
+    if x.is_finite() && x > 0.0 && x <= 365.0 * 86_400.0 {
+        Ok(x)
+    } else {
+        Err(format!(
+            "`{s}`: seconds must be more than 0 and at most a year"
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn seconds_accept_fractions_and_refuse_nonsense() {
+        assert_eq!(parse_seconds("0.5"), Ok(0.5));
+        assert_eq!(parse_seconds("300"), Ok(300.0));
+        for bad in ["0", "-1", "NaN", "inf", "soon", ""] {
+            assert!(parse_seconds(bad).is_err(), "{bad}");
+        }
+    }
+}

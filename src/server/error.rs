@@ -1,0 +1,287 @@
+//! Every way a request can fail, as one enum, and the one place where each becomes a
+//! response: an `application/problem+json` document (RFC 9457) with a stable `type`
+//! URI, a `title`, the `status` and a `detail`, plus fields of its own where they help
+//! (`problems` with JSON pointers for an invalid scene, `line` and `column` for bad
+//! JSON, `limit_bytes` for a body that is too large, `supported` for media types).
+//!
+//! 4xx say what was wrong with the request; 5xx are logged here and say nothing of the
+//! server's insides.
+//!
+//! ```json
+//! { "type": "https://raytile.example/problems/invalid-scene", "title": "Invalid scene",
+//!   "status": 422, "detail": "the scene has 1 problem",
+//!   "problems": [ { "pointer": "/image/width", "message": "must be at least 1" } ] }
+//! ```
+
+use std::time::Duration;
+
+use axum::http::{HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use serde::Serialize;
+use serde_json::{Map, Value, json};
+
+use crate::scene::{Problem, SceneError};
+
+/// Where the problem types live; `{BASE}{slug}` is each `type`.
+pub const PROBLEM_TYPE_BASE: &str = "https://raytile.example/problems/";
+
+/// The media type of every error body.
+pub const PROBLEM_JSON: &str = "application/problem+json";
+
+/// How long a refused client should wait before trying again (whole seconds).
+pub const RETRY_AFTER_SECONDS: u64 = 1;
+
+/// Why a request failed, decided before the first byte of the answer.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ApiError {
+    /// The body is not JSON (400).
+    #[error("the body is not valid JSON: {message} at line {line}, column {column}")]
+    InvalidJson {
+        /// serde_json's reason.
+        message: String,
+        /// 1-based line.
+        line: usize,
+        /// 1-based column.
+        column: usize,
+    },
+    /// A query parameter or header is malformed (400).
+    #[error("{0}")]
+    BadRequest(String),
+    /// No such resource (404).
+    #[error("{0}")]
+    NotFound(String),
+    /// The path exists but not with this method (405; axum adds `Allow`).
+    #[error("this path does not answer that method")]
+    MethodNotAllowed,
+    /// Nothing we can send matches `Accept` (406).
+    #[error("cannot answer with any of the accepted media types `{accept}`")]
+    NotAcceptable {
+        /// The request's `Accept`.
+        accept: String,
+        /// What this route can send.
+        supported: &'static [&'static str],
+    },
+    /// The body is larger than the limit (413).
+    #[error("the body is larger than the limit of {limit_bytes} bytes")]
+    BodyTooLarge {
+        /// The limit.
+        limit_bytes: usize,
+    },
+    /// The body is not JSON by its `Content-Type` (415).
+    #[error("the body must be `application/json`, not `{got}`")]
+    UnsupportedMediaType {
+        /// The request's `Content-Type` (empty when missing).
+        got: String,
+    },
+    /// JSON, but not a scene we can render: every problem found (422).
+    #[error("the scene has {} problem(s)", .0.len())]
+    InvalidScene(Vec<Problem>),
+    /// Every render slot is busy and the queue is full (503 + `Retry-After`).
+    #[error("every render slot is busy and the queue is full")]
+    Saturated,
+    /// The server is shutting down and takes no new work (503 + `Retry-After`).
+    #[error("the server is shutting down")]
+    ShuttingDown,
+    /// The request reached its deadline before the answer could start (504).
+    #[error("the request took longer than the deadline of {0:?}")]
+    DeadlineExceeded(Duration),
+    /// A fault of ours (500): logged, not explained.
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+impl From<SceneError> for ApiError {
+    fn from(e: SceneError) -> Self {
+        match e {
+            SceneError::Syntax {
+                message,
+                line,
+                column,
+            } => ApiError::InvalidJson {
+                message,
+                line,
+                column,
+            },
+            SceneError::Invalid(problems) => ApiError::InvalidScene(problems),
+        }
+    }
+}
+
+impl ApiError {
+    /// The HTTP status.
+    pub fn status(&self) -> StatusCode {
+        match self {
+            ApiError::InvalidJson { .. } | ApiError::BadRequest(_) => StatusCode::BAD_REQUEST,
+            ApiError::NotFound(_) => StatusCode::NOT_FOUND,
+            ApiError::MethodNotAllowed => StatusCode::METHOD_NOT_ALLOWED,
+            ApiError::NotAcceptable { .. } => StatusCode::NOT_ACCEPTABLE,
+            ApiError::BodyTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
+            ApiError::UnsupportedMediaType { .. } => StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            ApiError::InvalidScene(_) => StatusCode::UNPROCESSABLE_ENTITY,
+            ApiError::Saturated | ApiError::ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
+            ApiError::DeadlineExceeded(_) => StatusCode::GATEWAY_TIMEOUT,
+            ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
+        }
+    }
+
+    /// The last segment of the problem `type` URI, and the `title`.
+    pub fn kind(&self) -> (&'static str, &'static str) {
+        match self {
+            ApiError::InvalidJson { .. } => ("invalid-json", "Invalid JSON"),
+            ApiError::BadRequest(_) => ("bad-request", "Bad request"),
+            ApiError::NotFound(_) => ("not-found", "Not found"),
+            ApiError::MethodNotAllowed => ("method-not-allowed", "Method not allowed"),
+            ApiError::NotAcceptable { .. } => ("not-acceptable", "Not acceptable"),
+            ApiError::BodyTooLarge { .. } => ("body-too-large", "Body too large"),
+            ApiError::UnsupportedMediaType { .. } => {
+                ("unsupported-media-type", "Unsupported media type")
+            }
+            ApiError::InvalidScene(_) => ("invalid-scene", "Invalid scene"),
+            ApiError::Saturated => ("saturated", "Server saturated"),
+            ApiError::ShuttingDown => ("shutting-down", "Server shutting down"),
+            ApiError::DeadlineExceeded(_) => ("deadline-exceeded", "Deadline exceeded"),
+            ApiError::Internal(_) => ("internal", "Internal server error"),
+        }
+    }
+
+    /// The problem document.
+    pub fn problem(&self) -> ProblemDoc {
+        let (slug, title) = self.kind();
+        let status = self.status();
+        let detail = match self {
+            // Say nothing of our insides: the log has the details.
+            ApiError::Internal(_) => {
+                "the server failed; the request id locates it in the log".to_string()
+            }
+            other => other.to_string(),
+        };
+        let extra = match self {
+            ApiError::InvalidJson { line, column, .. } => {
+                json!({ "line": line, "column": column })
+            }
+            ApiError::NotAcceptable { supported, .. } => json!({ "supported": supported }),
+            ApiError::UnsupportedMediaType { .. } => {
+                json!({ "supported": ["application/json"] })
+            }
+            ApiError::BodyTooLarge { limit_bytes } => json!({ "limit_bytes": limit_bytes }),
+            ApiError::InvalidScene(problems) => json!({ "problems": problems }),
+            ApiError::Saturated | ApiError::ShuttingDown => {
+                json!({ "retry_after_seconds": RETRY_AFTER_SECONDS })
+            }
+            ApiError::DeadlineExceeded(d) => json!({ "deadline_seconds": d.as_secs_f64() }),
+            _ => json!({}),
+        };
+        ProblemDoc {
+            kind: format!("{PROBLEM_TYPE_BASE}{slug}"),
+            title,
+            status: status.as_u16(),
+            detail,
+            extra: match extra {
+                Value::Object(m) => m,
+                _ => Map::new(),
+            },
+        }
+    }
+}
+
+/// An RFC 9457 problem document, members in the RFC's order, then our own.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ProblemDoc {
+    /// A URI naming the kind of problem.
+    #[serde(rename = "type")]
+    pub kind: String,
+    /// A short summary of the kind.
+    pub title: &'static str,
+    /// The HTTP status.
+    pub status: u16,
+    /// What happened this time.
+    pub detail: String,
+    /// Members of our own (`problems`, `line`, `column`, …).
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let status = self.status();
+        if status.is_server_error() && !matches!(self, ApiError::Saturated | ApiError::ShuttingDown)
+        {
+            tracing::error!(error = %self, status = status.as_u16(), "request failed");
+        }
+        let body = serde_json::to_vec(&self.problem()).unwrap_or_default();
+        let mut res = (status, body).into_response();
+        let h = res.headers_mut();
+        h.insert(header::CONTENT_TYPE, HeaderValue::from_static(PROBLEM_JSON));
+        if matches!(self, ApiError::Saturated | ApiError::ShuttingDown) {
+            h.insert(header::RETRY_AFTER, HeaderValue::from(RETRY_AFTER_SECONDS));
+        }
+        if matches!(
+            self,
+            ApiError::BodyTooLarge { .. }
+                | ApiError::DeadlineExceeded(_)
+                | ApiError::ShuttingDown
+                | ApiError::Internal(_)
+        ) {
+            // The body may be unread, or the server is leaving: don't reuse the connection.
+            h.insert(header::CONNECTION, HeaderValue::from_static("close"));
+        }
+        res
+    }
+}
+
+/// The answer for a panic caught by the outermost layer: a plain 500 problem.
+pub fn panic_response(panic: Box<dyn std::any::Any + Send + 'static>) -> Response {
+    let what = panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic".into());
+    ApiError::Internal(format!("handler panicked: {what}")).into_response()
+}
+
+/// The fallback of unknown paths: 404.
+pub async fn not_found(uri: axum::http::Uri) -> ApiError {
+    ApiError::NotFound(format!("there is nothing at `{}`", uri.path()))
+}
+
+/// The fallback of known paths with an unknown method: 405.
+pub async fn method_not_allowed() -> ApiError {
+    ApiError::MethodNotAllowed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_problem_has_the_rfc9457_members() {
+        let all = [
+            ApiError::InvalidJson {
+                message: "x".into(),
+                line: 1,
+                column: 2,
+            },
+            ApiError::BadRequest("x".into()),
+            ApiError::NotFound("x".into()),
+            ApiError::MethodNotAllowed,
+            ApiError::NotAcceptable {
+                accept: "text/html".into(),
+                supported: &["application/json"],
+            },
+            ApiError::BodyTooLarge { limit_bytes: 1 },
+            ApiError::UnsupportedMediaType { got: "x".into() },
+            ApiError::InvalidScene(vec![Problem::new("/image", "x")]),
+            ApiError::Saturated,
+            ApiError::ShuttingDown,
+            ApiError::DeadlineExceeded(Duration::from_secs(1)),
+            ApiError::Internal("secret".into()),
+        ];
+        for e in all {
+            let p = serde_json::to_value(e.problem()).unwrap();
+            assert!(p["type"].as_str().unwrap().starts_with(PROBLEM_TYPE_BASE));
+            assert!(p["title"].is_string());
+            assert_eq!(p["status"], e.status().as_u16());
+            assert!(!p["detail"].as_str().unwrap().contains("secret"));
+        }
+    }
+}

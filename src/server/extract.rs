@@ -1,0 +1,323 @@
+//! What the handlers take from a request, each refusing in our own error format:
+//!
+//! - [`RequestInfo`]: the request id and arrival time (set by [`super::observe`]), from
+//!   which the deadline counts;
+//! - [`RegionQuery`]: `?region=x,y,w,h`, and nothing else;
+//! - [`negotiate`]: the media type to answer with, from `Accept` (406 when none fits);
+//! - [`SceneBody`]: the body as a validated scene: `Content-Type` first (415), then the
+//!   size limit (413), then JSON syntax (400 with line and column), then the scene's
+//!   meaning and the server's limits (422 with every problem). All of it before
+//!   admission, so a bad request never takes a render slot.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use axum::body::Body;
+use axum::extract::{FromRequest, FromRequestParts, Query, Request};
+use axum::http::request::Parts;
+use axum::http::{HeaderMap, header};
+
+use super::AppState;
+use super::error::ApiError;
+use crate::render::Rect;
+use crate::scene::{self, Scene};
+
+/// The request's id and when it arrived.
+#[derive(Debug, Clone)]
+pub struct RequestInfo {
+    /// The `X-Request-Id` (the client's, or one we made).
+    pub id: String,
+    /// When the request arrived.
+    pub start: Instant,
+}
+
+impl<S: Send + Sync> FromRequestParts<S> for RequestInfo {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, ApiError> {
+        // Set by the observing middleware; without it (a router used bare) start now.
+        Ok(parts
+            .extensions
+            .get::<RequestInfo>()
+            .cloned()
+            .unwrap_or_else(|| RequestInfo {
+                id: String::new(),
+                start: Instant::now(),
+            }))
+    }
+}
+
+/// `?region=x,y,w,h`: a rectangle of the full frame, or the whole frame.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct RegionQuery {
+    /// The rectangle asked for, if any.
+    pub region: Option<Rect>,
+}
+
+impl<S: Send + Sync> FromRequestParts<S> for RegionQuery {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, ApiError> {
+        let Query(pairs) = Query::<Vec<(String, String)>>::try_from_uri(&parts.uri)
+            .map_err(|e| ApiError::BadRequest(format!("cannot read the query string: {e}")))?;
+        let mut q = RegionQuery::default();
+        for (k, v) in pairs {
+            match k.as_str() {
+                "region" if q.region.is_none() => {
+                    q.region = Some(crate::cli::parse_region(&v).map_err(|e| {
+                        ApiError::BadRequest(format!("query parameter `region`: {e}"))
+                    })?);
+                }
+                "region" => {
+                    return Err(ApiError::BadRequest(
+                        "query parameter `region` is given more than once".into(),
+                    ));
+                }
+                other => {
+                    return Err(ApiError::BadRequest(format!(
+                        "unknown query parameter `{other}`: this route takes only `region`"
+                    )));
+                }
+            }
+        }
+        Ok(q)
+    }
+}
+
+impl RegionQuery {
+    /// The region within `scene`'s frame (the whole frame by default).
+    pub fn within(&self, scene: &Scene) -> Result<Rect, ApiError> {
+        let frame = Rect::frame(scene.width, scene.height);
+        match self.region {
+            None => Ok(frame),
+            Some(r) if r.within(&frame) => Ok(r),
+            Some(r) => Err(ApiError::BadRequest(format!(
+                "the region {},{},{},{} does not lie within the {} × {} frame",
+                r.x, r.y, r.width, r.height, frame.width, frame.height
+            ))),
+        }
+    }
+}
+
+/// Picks what to answer with from `offers` (in order of preference) by the request's
+/// `Accept` (RFC 9110 §12.5.1): the most specific matching range sets an offer's
+/// quality; the best quality wins, ties go to the earlier offer; no header, the first.
+pub fn negotiate(
+    headers: &HeaderMap,
+    offers: &'static [&'static str],
+) -> Result<&'static str, ApiError> {
+    let accept: Vec<&str> = headers
+        .get_all(header::ACCEPT)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .collect();
+    let not_acceptable = || ApiError::NotAcceptable {
+        accept: accept.join(", "),
+        supported: offers,
+    };
+    if accept.is_empty() {
+        return offers.first().copied().ok_or_else(not_acceptable);
+    }
+    let ranges: Vec<(String, f32)> = accept
+        .iter()
+        .flat_map(|v| v.split(','))
+        .filter_map(|r| {
+            let mut parts = r.split(';');
+            let range = parts.next()?.trim().to_ascii_lowercase();
+            if range.is_empty() {
+                return None;
+            }
+            let q = parts
+                .filter_map(|p| p.trim().strip_prefix("q=").or(p.trim().strip_prefix("Q=")))
+                .find_map(|q| q.trim().parse::<f32>().ok())
+                .unwrap_or(1.0);
+            Some((range, q))
+        })
+        .collect();
+    let quality = |offer: &str| -> f32 {
+        let (ty, _) = offer.split_once('/').unwrap_or((offer, ""));
+        let mut best: Option<(u8, f32)> = None;
+        for (range, q) in &ranges {
+            let specificity = if range == offer {
+                3
+            } else if range.strip_suffix("/*") == Some(ty) {
+                2
+            } else if range == "*/*" || range == "*" {
+                1
+            } else {
+                continue;
+            };
+            if best.is_none_or(|(s, _)| specificity > s) {
+                best = Some((specificity, *q));
+            }
+        }
+        best.map_or(0.0, |(_, q)| q)
+    };
+    let mut chosen: Option<(&'static str, f32)> = None;
+    for offer in offers {
+        let q = quality(offer);
+        if q > 0.0 && chosen.is_none_or(|(_, best)| q > best) {
+            chosen = Some((offer, q));
+        }
+    }
+    chosen.map(|(o, _)| o).ok_or_else(not_acceptable)
+}
+
+/// Whether `Content-Type` says JSON: `application/json` or any `application/…+json`,
+/// with any parameters (`; charset=utf-8`).
+pub fn is_json(content_type: &str) -> bool {
+    let essence = content_type
+        .split(';')
+        .next()
+        .unwrap_or("")
+        .trim()
+        .to_ascii_lowercase();
+    essence == "application/json"
+        || (essence.starts_with("application/") && essence.ends_with("+json"))
+}
+
+/// The body, read and validated into a scene.
+#[derive(Debug, Clone)]
+pub struct SceneBody {
+    /// The scene.
+    pub scene: Arc<Scene>,
+    /// Time spent reading and validating the body.
+    pub parse: Duration,
+}
+
+impl FromRequest<AppState> for SceneBody {
+    type Rejection = ApiError;
+
+    async fn from_request(req: Request, app: &AppState) -> Result<Self, ApiError> {
+        let info = req.extensions().get::<RequestInfo>().cloned();
+        let start = info.as_ref().map_or_else(Instant::now, |i| i.start);
+        let deadline = tokio::time::Instant::from_std(start + app.config.deadline());
+        let content_type = req
+            .headers()
+            .get(header::CONTENT_TYPE)
+            .map(|v| String::from_utf8_lossy(v.as_bytes()).into_owned())
+            .unwrap_or_default();
+        if !is_json(&content_type) {
+            return Err(ApiError::UnsupportedMediaType { got: content_type });
+        }
+        let limit = app.config.max_body_bytes;
+        let declared = req
+            .headers()
+            .get(header::CONTENT_LENGTH)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.trim().parse::<u64>().ok());
+        if declared.is_some_and(|n| n > limit as u64) {
+            // Refuse before reading a byte of it.
+            return Err(ApiError::BodyTooLarge { limit_bytes: limit });
+        }
+        let t = Instant::now();
+        let bytes = read_body(req.into_body(), limit, deadline, app).await?;
+        let limits = app.config.limits();
+        // Validation is CPU work proportional to the body (16 MiB of mesh takes a while):
+        // keep it off the threads that move bytes.
+        let parsed = tokio::time::timeout_at(
+            deadline,
+            tokio::task::spawn_blocking(move || scene::parse(&bytes, &limits)),
+        )
+        .await
+        .map_err(|_| deadline_exceeded(app))?
+        .map_err(|e| ApiError::Internal(format!("the validation task failed: {e}")))?;
+        Ok(SceneBody {
+            scene: Arc::new(parsed?),
+            parse: t.elapsed(),
+        })
+    }
+}
+
+/// Counts and builds the 504 of a request whose deadline passed before its answer began.
+pub fn deadline_exceeded(app: &AppState) -> ApiError {
+    app.metrics.reject("deadline");
+    ApiError::DeadlineExceeded(app.config.deadline())
+}
+
+async fn read_body(
+    body: Body,
+    limit: usize,
+    deadline: tokio::time::Instant,
+    app: &AppState,
+) -> Result<axum::body::Bytes, ApiError> {
+    match tokio::time::timeout_at(deadline, axum::body::to_bytes(body, limit)).await {
+        Err(_) => Err(deadline_exceeded(app)),
+        Ok(Ok(b)) => Ok(b),
+        Ok(Err(e)) => {
+            let too_large =
+                std::iter::successors(Some(&e as &(dyn std::error::Error + 'static)), |e| {
+                    e.source()
+                })
+                .any(|e| e.is::<http_body_util::LengthLimitError>());
+            if too_large {
+                Err(ApiError::BodyTooLarge { limit_bytes: limit })
+            } else {
+                Err(ApiError::BadRequest(format!("cannot read the body: {e}")))
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use axum::http::HeaderValue;
+
+    const HITS: &[&str] = &[
+        "application/json",
+        "application/x-ndjson",
+        "application/x-npy",
+    ];
+
+    fn accept(v: &str) -> HeaderMap {
+        let mut h = HeaderMap::new();
+        h.insert(header::ACCEPT, HeaderValue::from_str(v).unwrap());
+        h
+    }
+
+    #[test]
+    fn negotiation_follows_rfc9110() {
+        assert_eq!(negotiate(&HeaderMap::new(), HITS), Ok("application/json"));
+        assert_eq!(negotiate(&accept("*/*"), HITS), Ok("application/json"));
+        assert_eq!(
+            negotiate(&accept("application/x-npy"), HITS),
+            Ok("application/x-npy")
+        );
+        assert_eq!(
+            negotiate(
+                &accept("application/json;q=0.5, application/x-ndjson"),
+                HITS
+            ),
+            Ok("application/x-ndjson")
+        );
+        assert_eq!(
+            negotiate(&accept("application/*;q=0.1, application/json;q=0"), HITS),
+            Ok("application/x-ndjson")
+        );
+        assert!(matches!(
+            negotiate(&accept("text/html"), HITS),
+            Err(ApiError::NotAcceptable { .. })
+        ));
+        assert!(negotiate(&accept("image/*"), &["image/png"]).is_ok());
+    }
+
+    #[test]
+    fn json_content_types() {
+        for ok in [
+            "application/json",
+            "Application/JSON; charset=utf-8",
+            "application/scene+json",
+        ] {
+            assert!(is_json(ok), "{ok}");
+        }
+        for bad in [
+            "",
+            "text/plain",
+            "application/x-www-form-urlencoded",
+            "json",
+        ] {
+            assert!(!is_json(bad), "{bad}");
+        }
+    }
+}

@@ -1,0 +1,195 @@
+//! The HTTP service (SPEC §6–7): axum on tokio in front of the renderer on rayon.
+//! Tokio's threads only move bytes; tracing runs on a rayon pool of `--threads`.
+//!
+//! Where to start reading:
+//! - [`app`] builds the router, the same one the tests talk to; [`serve`] binds it and
+//!   runs it until SIGTERM or Ctrl-C, then drains.
+//! - one file per group of routes: [`render`] (`/v1/render`, `/v1/hits`), [`validate`],
+//!   [`scenes`], [`health`], [`metrics`];
+//! - the machinery they share: [`extract`] (body, query, `Accept`), [`admission`]
+//!   (render slots and the queue), [`stream`] (rayon thread → response body),
+//!   [`error`] (every failure → `application/problem+json`, in one place),
+//!   [`observe`] (request ids, log lines, request counts), [`shutdown`] (the phases of
+//!   a graceful stop).
+
+pub mod admission;
+pub mod error;
+pub mod extract;
+pub mod health;
+pub mod metrics;
+pub mod observe;
+pub mod render;
+pub mod scenes;
+pub mod shutdown;
+pub mod stream;
+pub mod validate;
+
+use std::future::{Future, IntoFuture};
+use std::ops::Deref;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::Context;
+use axum::Router;
+use tokio::net::TcpListener;
+use tower_http::catch_panic::CatchPanicLayer;
+
+use crate::config::ServeArgs;
+use admission::Admission;
+use metrics::Metrics;
+use shutdown::{Phase, Shutdown};
+
+/// After the grace period, how long cut streams get to close before we exit anyway.
+const CUT_WAIT: Duration = Duration::from_secs(5);
+
+/// What every handler shares; cheap to clone.
+#[derive(Debug, Clone)]
+pub struct AppState(Arc<Shared>);
+
+/// The shared state behind [`AppState`].
+#[derive(Debug)]
+pub struct Shared {
+    /// The configuration.
+    pub config: ServeArgs,
+    /// The threads that trace.
+    pub pool: rayon::ThreadPool,
+    /// Render slots and the queue.
+    pub admission: Admission,
+    /// The metrics.
+    pub metrics: Metrics,
+    /// Running, draining or stopping.
+    pub shutdown: Shutdown,
+}
+
+impl Deref for AppState {
+    type Target = Shared;
+    fn deref(&self) -> &Shared {
+        &self.0
+    }
+}
+
+impl AppState {
+    /// Starts the rayon pool and sets up admission and metrics for `config`.
+    pub fn new(config: ServeArgs) -> anyhow::Result<AppState> {
+        let slots = config.max_renders();
+        let metrics = Metrics::new(slots, config.queue).context("cannot register the metrics")?;
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(config.threads())
+            .thread_name(|i| format!("raytile-trace-{i}"))
+            // Jobs catch their own panics; this is the backstop that keeps a panic on a
+            // trace thread from aborting the process (rayon's default).
+            .panic_handler(|_| tracing::error!("a trace thread panicked"))
+            .build()
+            .context("cannot start the trace threads")?;
+        Ok(AppState(Arc::new(Shared {
+            admission: Admission::new(slots, config.queue, metrics.clone()),
+            config,
+            pool,
+            metrics,
+            shutdown: Shutdown::default(),
+        })))
+    }
+}
+
+/// The whole service as a router: every route, the 404 and 405 fallbacks, and the
+/// layers (panics to 500, request ids, logs and counts).
+pub fn app(state: AppState) -> Router {
+    Router::new()
+        .merge(render::router())
+        .merge(validate::router())
+        .merge(scenes::router())
+        .merge(health::router())
+        .merge(metrics::router())
+        .fallback(error::not_found)
+        // After the routes: it applies to the routes that exist when it is called.
+        .method_not_allowed_fallback(error::method_not_allowed)
+        .layer(CatchPanicLayer::custom(error::panic_response))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            observe::observe,
+        ))
+        .with_state(state)
+}
+
+/// Binds `config.addr`, logs the address, and serves until SIGTERM or Ctrl-C.
+pub async fn serve(config: ServeArgs) -> anyhow::Result<()> {
+    let listener = TcpListener::bind(config.addr)
+        .await
+        .with_context(|| format!("cannot listen on {}", config.addr))?;
+    let addr = listener.local_addr()?;
+    let state = AppState::new(config)?;
+    tracing::info!(
+        %addr,
+        max_renders = state.config.max_renders(),
+        queue = state.config.queue,
+        threads = state.pool.current_num_threads(),
+        "listening on http://{addr}"
+    );
+    run(listener, state, shutdown_signal()).await
+}
+
+/// Serves on `listener` until `signal` resolves, then shuts down gracefully: stop
+/// accepting, refuse new work with 503 (`/readyz` too), let in-flight responses finish
+/// for the grace period, then cut what is left and return.
+pub async fn run(
+    listener: TcpListener,
+    state: AppState,
+    signal: impl Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<()> {
+    let shutdown = state.shutdown.clone();
+    let grace = state.config.grace();
+    let draining = {
+        let shutdown = shutdown.clone();
+        async move {
+            signal.await;
+            tracing::info!(
+                grace_seconds = grace.as_secs_f64(),
+                "shutting down: refusing new work, finishing in-flight responses"
+            );
+            shutdown.advance(Phase::Draining);
+        }
+    };
+    let server = axum::serve(listener, app(state)).with_graceful_shutdown(draining);
+    let mut server = std::pin::pin!(server.into_future());
+    tokio::select! {
+        r = &mut server => return r.context("the server failed"),
+        _ = shutdown.reached(Phase::Draining) => {}
+    }
+    match tokio::time::timeout(grace, &mut server).await {
+        Ok(r) => r.context("the server failed")?,
+        Err(_) => {
+            tracing::warn!("the grace period is over: cutting the responses still in flight");
+            shutdown.advance(Phase::Stopping);
+            if tokio::time::timeout(CUT_WAIT, &mut server).await.is_err() {
+                tracing::warn!("some connections are still open; exiting anyway");
+            }
+        }
+    }
+    tracing::info!("stopped");
+    Ok(())
+}
+
+/// Resolves on SIGTERM or Ctrl-C (SIGINT).
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        if tokio::signal::ctrl_c().await.is_err() {
+            // No handler could be installed: wait for SIGTERM alone.
+            std::future::pending::<()>().await;
+        }
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {}
+        _ = term => {}
+    }
+}

@@ -1,0 +1,439 @@
+//! `POST /v1/render` (scene → PNG) and `POST /v1/hits` (scene → per-pixel hit data),
+//! both streamed while tiles finish, both with `?region=x,y,w,h`.
+//!
+//! The order is the point: every failure is decided before the first byte
+//! (extract and validate, negotiate, admit), because once the status line is out it
+//! cannot change. Then the job goes to the rayon pool with its render slot, and the
+//! handler returns at once with a body fed by [`super::stream`].
+//!
+//! After the first byte, three things can cut the stream: the client leaving (the
+//! channel closes; tracing stops at the next tile), the deadline (a tokio timer cancels
+//! the render), and the end of the shutdown grace period. A cut stream ends with a body
+//! error, so hyper aborts the transfer and the client cannot mistake a partial image for
+//! a whole one.
+//!
+//! Headers: `X-Raytile-Width` and `X-Raytile-Height` (the size of this answer's image),
+//! `X-Raytile-Region` (`x,y,w,h` in the full frame), and `Server-Timing` with `parse`
+//! and `queue` durations, which are known when the head leaves. How long tracing took is
+//! known only at the end: a client that sends `TE: trailers` gets it as a trailer,
+//! `Server-Timing: render;dur=…` with `X-Raytile-Rays`; every client finds it in the log
+//! line and the `raytile_render_duration_seconds` histogram.
+
+use std::panic::AssertUnwindSafe;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use axum::Router;
+use axum::body::Body;
+use axum::extract::State;
+use axum::http::{HeaderMap, HeaderName, HeaderValue, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::post;
+use tokio::sync::oneshot;
+
+use super::AppState;
+use super::admission::RenderSlot;
+use super::error::ApiError;
+use super::extract::{RegionQuery, RequestInfo, SceneBody, deadline_exceeded, negotiate};
+use super::metrics::Metrics;
+use super::shutdown::Phase;
+use super::stream::{self, Aborter, BodyWriter};
+use crate::output::{HitFormat, HitSink, PngSink};
+use crate::render::{
+    self, Cancel, ColourKernel, HitKernel, Rect, RenderStats, Renderer, SinkClosed, Stopped, Tile,
+    TileSink,
+};
+use crate::scene::Scene;
+
+/// The routes: `POST /v1/render`, `POST /v1/hits`.
+pub fn router() -> Router<AppState> {
+    Router::new()
+        .route("/v1/render", post(render))
+        .route("/v1/hits", post(hits))
+}
+
+/// The media types `/v1/render` answers with.
+pub const RENDER_TYPES: &[&str] = &["image/png"];
+
+/// The media types `/v1/hits` answers with, the default first (SPEC §5).
+pub const HIT_TYPES: &[&str] = &[
+    "application/json",
+    "application/x-ndjson",
+    "application/x-npy",
+];
+
+/// The image's width in pixels (of the region when one was asked for).
+pub const X_RAYTILE_WIDTH: HeaderName = HeaderName::from_static("x-raytile-width");
+/// The image's height in pixels.
+pub const X_RAYTILE_HEIGHT: HeaderName = HeaderName::from_static("x-raytile-height");
+/// The rectangle of the full frame this answer covers: `x,y,w,h`.
+pub const X_RAYTILE_REGION: HeaderName = HeaderName::from_static("x-raytile-region");
+/// Rays traced (a trailer).
+pub const X_RAYTILE_RAYS: HeaderName = HeaderName::from_static("x-raytile-rays");
+/// `Server-Timing` (W3C): `parse` and `queue` in the head, `render` as a trailer.
+pub const SERVER_TIMING: HeaderName = HeaderName::from_static("server-timing");
+
+/// What a job writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Output {
+    Png,
+    Hits(HitFormat),
+}
+
+impl Output {
+    fn media_type(self) -> &'static str {
+        match self {
+            Output::Png => "image/png",
+            Output::Hits(f) => f.media_type(),
+        }
+    }
+
+    /// The `output` label of the duration histogram.
+    fn label(self) -> &'static str {
+        match self {
+            Output::Png => "png",
+            Output::Hits(HitFormat::Json) => "json",
+            Output::Hits(HitFormat::Ndjson) => "ndjson",
+            Output::Hits(HitFormat::Npy) => "npy",
+        }
+    }
+}
+
+/// `POST /v1/render`.
+async fn render(
+    State(app): State<AppState>,
+    info: RequestInfo,
+    query: RegionQuery,
+    headers: HeaderMap,
+    body: SceneBody,
+) -> Result<Response, ApiError> {
+    negotiate(&headers, RENDER_TYPES)?;
+    start(app, info, query, &headers, body, Output::Png).await
+}
+
+/// `POST /v1/hits`.
+async fn hits(
+    State(app): State<AppState>,
+    info: RequestInfo,
+    query: RegionQuery,
+    headers: HeaderMap,
+    body: SceneBody,
+) -> Result<Response, ApiError> {
+    let format = match negotiate(&headers, HIT_TYPES)? {
+        "application/x-ndjson" => HitFormat::Ndjson,
+        "application/x-npy" => HitFormat::Npy,
+        _ => HitFormat::Json,
+    };
+    start(app, info, query, &headers, body, Output::Hits(format)).await
+}
+
+/// Checks the region, takes a render slot, and starts the streamed answer.
+async fn start(
+    app: AppState,
+    info: RequestInfo,
+    query: RegionQuery,
+    headers: &HeaderMap,
+    body: SceneBody,
+    output: Output,
+) -> Result<Response, ApiError> {
+    let region = query.within(&body.scene)?;
+    let deadline = info.start + app.config.deadline();
+    let queued = Instant::now();
+    let slot = tokio::time::timeout_at(deadline.into(), app.admission.admit(&app.shutdown))
+        .await
+        .map_err(|_| deadline_exceeded(&app))??;
+    let queue = queued.elapsed();
+    let trailers = wants_trailers(headers);
+
+    let (writer, stream_body) = stream::channel();
+    let cut = Cut::new(writer.aborter());
+    let done = spawn_watch(&app, cut.clone(), deadline);
+    let job = Job {
+        app: app.clone(),
+        scene: body.scene,
+        region,
+        output,
+        cut,
+        writer,
+        trailers,
+        slot,
+        done,
+        span: tracing::Span::current(),
+    };
+    app.pool.spawn(move || job.run());
+
+    let mut res = Body::new(stream_body).into_response();
+    let h = res.headers_mut();
+    h.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static(output.media_type()),
+    );
+    h.insert(X_RAYTILE_WIDTH, HeaderValue::from(region.width));
+    h.insert(X_RAYTILE_HEIGHT, HeaderValue::from(region.height));
+    if let Ok(v) = HeaderValue::from_str(&format!(
+        "{},{},{},{}",
+        region.x, region.y, region.width, region.height
+    )) {
+        h.insert(X_RAYTILE_REGION, v);
+    }
+    if let Ok(v) = HeaderValue::from_str(&format!(
+        "parse;dur={:.3}, queue;dur={:.3}",
+        ms(body.parse),
+        ms(queue)
+    )) {
+        h.insert(SERVER_TIMING, v);
+    }
+    if trailers {
+        h.insert(
+            header::TRAILER,
+            HeaderValue::from_static("server-timing, x-raytile-rays"),
+        );
+    }
+    Ok(res)
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// Whether the client said it accepts trailers (`TE: trailers`); hyper sends them
+/// only then.
+fn wants_trailers(headers: &HeaderMap) -> bool {
+    headers
+        .get_all(header::TE)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(','))
+        .any(|t| {
+            t.split(';')
+                .next()
+                .unwrap_or("")
+                .trim()
+                .eq_ignore_ascii_case("trailers")
+        })
+}
+
+/// How a render is pulled: its cancel flag (tracing stops between tiles), the writer's
+/// aborter (a wait for a client that does not read ends), and the reason.
+#[derive(Debug, Clone)]
+struct Cut {
+    cancel: Cancel,
+    aborter: Aborter,
+    why: Arc<std::sync::OnceLock<&'static str>>,
+}
+
+impl Cut {
+    fn new(aborter: Aborter) -> Cut {
+        Cut {
+            cancel: Cancel::new(),
+            aborter,
+            why: Arc::new(std::sync::OnceLock::new()),
+        }
+    }
+
+    fn pull(&self, why: &'static str) {
+        let _ = self.why.set(why);
+        self.cancel.cancel();
+        self.aborter.abort();
+    }
+}
+
+/// A tokio timer that pulls the render at its deadline or when the grace period ends.
+/// It ends with the render: the job holds the sender of `done` and drops it at the end.
+fn spawn_watch(app: &AppState, cut: Cut, deadline: Instant) -> oneshot::Sender<()> {
+    let (done_tx, done) = oneshot::channel::<()>();
+    let shutdown = app.shutdown.clone();
+    let metrics = app.metrics.clone();
+    tokio::spawn(async move {
+        tokio::select! {
+            _ = tokio::time::sleep_until(deadline.into()) => {
+                metrics.reject("deadline");
+                cut.pull("the deadline passed");
+            }
+            _ = shutdown.reached(Phase::Stopping) => cut.pull("the server is shutting down"),
+            _ = done => {}
+        }
+    });
+    done_tx
+}
+
+/// Everything a render needs on its rayon thread.
+struct Job {
+    app: AppState,
+    scene: Arc<Scene>,
+    region: Rect,
+    output: Output,
+    cut: Cut,
+    writer: BodyWriter,
+    trailers: bool,
+    slot: RenderSlot,
+    done: oneshot::Sender<()>,
+    span: tracing::Span,
+}
+
+/// Why a job stopped early.
+#[derive(Debug, thiserror::Error)]
+enum Failure {
+    #[error(transparent)]
+    Stopped(#[from] Stopped),
+    #[error("cannot write the output: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+impl Job {
+    /// Traces, streams and reports; runs on a rayon thread.
+    fn run(self) {
+        let Job {
+            app,
+            scene,
+            region,
+            output,
+            cut,
+            writer,
+            trailers,
+            slot,
+            done,
+            span,
+        } = self;
+        let _enter = span.enter();
+        let started = Instant::now();
+        let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
+            trace(&app, scene, region, output, &cut.cancel, &writer)
+        }));
+        let elapsed = started.elapsed();
+        let outcome = match result {
+            Ok(Ok(stats)) => {
+                let t = trailers.then(|| render_trailers(elapsed, stats));
+                match writer.finish(t) {
+                    Ok(()) => {
+                        tracing::debug!(rays = stats.rays, tiles = stats.tiles, "render complete");
+                        "complete"
+                    }
+                    Err(_) => "cancelled",
+                }
+            }
+            Ok(Err(e)) => {
+                // A sink error or a cancel can follow from the client leaving or from a
+                // cut; anything else is a fault.
+                let why = if writer.is_closed() {
+                    "the client went away"
+                } else if let Some(why) = cut.why.get() {
+                    why
+                } else if matches!(e, Failure::Stopped(Stopped::Cancelled)) {
+                    "cancelled"
+                } else {
+                    ""
+                };
+                if why.is_empty() {
+                    tracing::error!(error = %e, "render failed");
+                    writer.fail(format!("the render failed: {e}"));
+                    "failed"
+                } else {
+                    tracing::info!(reason = why, "render stopped early");
+                    writer.fail(why);
+                    "cancelled"
+                }
+            }
+            Err(_) => {
+                tracing::error!("a render panicked");
+                writer.fail("the render failed");
+                "failed"
+            }
+        };
+        app.metrics
+            .render_duration(output.label(), outcome)
+            .observe(elapsed.as_secs_f64());
+        // Free the slot only now, after the last byte was handed over.
+        drop(slot);
+        drop(done);
+    }
+}
+
+fn render_trailers(elapsed: Duration, stats: RenderStats) -> HeaderMap {
+    let mut t = HeaderMap::new();
+    if let Ok(v) = HeaderValue::from_str(&format!("render;dur={:.3}", ms(elapsed))) {
+        t.insert(SERVER_TIMING, v);
+    }
+    t.insert(X_RAYTILE_RAYS, HeaderValue::from(stats.rays));
+    t
+}
+
+/// Builds the sink for `output`, sends its header at once, traces, and completes it.
+fn trace(
+    app: &AppState,
+    scene: Arc<Scene>,
+    region: Rect,
+    output: Output,
+    cancel: &Cancel,
+    writer: &BodyWriter,
+) -> Result<RenderStats, Failure> {
+    let tile = app.config.tile;
+    match output {
+        Output::Png => {
+            // The PNG header goes out before the acceleration structure is built.
+            let png = PngSink::new(writer.clone(), region, tile)?;
+            writer.send_pending()?;
+            let renderer = Renderer::new(scene);
+            let sink = Observed::new(&png, writer, &app.metrics);
+            let stats = render::run(&ColourKernel(&renderer), region, tile, cancel, &sink)?;
+            png.finish()?;
+            Ok(stats)
+        }
+        Output::Hits(format) => {
+            let renderer = Renderer::new(scene);
+            let hits = HitSink::new(&renderer.scene, format, writer.clone(), region, tile)?;
+            writer.send_pending()?;
+            let sink = Observed::new(&hits, writer, &app.metrics);
+            let stats = render::run(&HitKernel(&renderer), region, tile, cancel, &sink)?;
+            hits.finish()?;
+            Ok(stats)
+        }
+    }
+}
+
+/// Wraps a sink: counts rays and tiles into the metrics, refuses tiles once the client
+/// is gone (so tracing stops even while no bytes are due), and sends the bytes each
+/// tile released (a completed band of rows, or an NDJSON line) without waiting for a
+/// full chunk, so the first rows leave early.
+struct Observed<'a, S> {
+    inner: &'a S,
+    writer: &'a BodyWriter,
+    metrics: &'a Metrics,
+}
+
+impl<'a, S> Observed<'a, S> {
+    fn new(inner: &'a S, writer: &'a BodyWriter, metrics: &'a Metrics) -> Self {
+        Observed {
+            inner,
+            writer,
+            metrics,
+        }
+    }
+}
+
+impl<T, S: TileSink<T>> TileSink<T> for Observed<'_, S> {
+    fn tile(&self, tile: Tile<T>) -> Result<(), SinkClosed> {
+        self.metrics.rays.inc_by(tile.rays);
+        self.metrics.tiles.inc();
+        if self.writer.is_closed() {
+            return Err(SinkClosed("the client went away".into()));
+        }
+        self.inner.tile(tile)?;
+        self.writer
+            .send_pending()
+            .map_err(|e| SinkClosed(e.to_string()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn te_trailers_is_recognised() {
+        let mut h = HeaderMap::new();
+        assert!(!wants_trailers(&h));
+        h.insert(header::TE, HeaderValue::from_static("gzip, trailers"));
+        assert!(wants_trailers(&h));
+    }
+}
