@@ -31,6 +31,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use axum::Router;
+use axum::serve::ListenerExt;
 use tokio::net::TcpListener;
 use tower_http::catch_panic::CatchPanicLayer;
 
@@ -149,6 +150,14 @@ pub async fn run(
             shutdown.advance(Phase::Draining);
         }
     };
+    // Streamed bodies go out as many small writes (the head, the PNG header, each band):
+    // without TCP_NODELAY, Nagle's algorithm holds each one back until the client's
+    // delayed ACK, about 40 ms per response.
+    let listener = listener.tap_io(|tcp| {
+        if let Err(e) = tcp.set_nodelay(true) {
+            tracing::debug!(error = %e, "cannot set TCP_NODELAY");
+        }
+    });
     let server = axum::serve(listener, app(state)).with_graceful_shutdown(draining);
     let mut server = std::pin::pin!(server.into_future());
     tokio::select! {

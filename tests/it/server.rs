@@ -424,6 +424,14 @@ async fn every_error_is_a_problem_document() {
     )
     .await;
     assert_eq!(doc["supported"][2], "application/x-npy");
+    // Decided from the head, before the body is read: a broken body does not matter.
+    problem(
+        app.post_json("/v1/hits", "{", &[("accept", "text/html")])
+            .await,
+        406,
+        "not-acceptable",
+    )
+    .await;
     problem(
         app.post_json(
             "/v1/render",
