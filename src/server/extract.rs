@@ -3,7 +3,8 @@
 //! - [`RequestInfo`]: the request id and arrival time (set by [`super::observe`]), from
 //!   which the deadline counts;
 //! - [`RegionQuery`]: `?region=x,y,w,h`, and nothing else;
-//! - [`negotiate`]: the media type to answer with, from `Accept` (406 when none fits);
+//! - [`Accepted`]: the media type to answer with, from `Accept` (406 when none fits),
+//!   decided by [`negotiate`] before the body is read;
 //! - [`SceneBody`]: the body as a validated scene: `Content-Type` first (415), then the
 //!   size limit (413), then JSON syntax (400 with line and column), then the scene's
 //!   meaning and the server's limits (422 with every problem). All of it before
@@ -97,6 +98,32 @@ impl RegionQuery {
             ))),
         }
     }
+}
+
+/// The media types a route can answer with, in order of preference.
+pub trait Offers: Send + Sync {
+    /// The media types, the default first.
+    const OFFERS: &'static [&'static str];
+}
+
+/// The media type chosen from `O::OFFERS` by the request's `Accept`.
+#[derive(Debug, Clone, Copy)]
+pub struct Accepted<O>(pub &'static str, pub std::marker::PhantomData<O>);
+
+impl<S: Send + Sync, O: Offers> FromRequestParts<S> for Accepted<O> {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, ApiError> {
+        negotiate(&parts.headers, O::OFFERS).map(|m| Accepted(m, std::marker::PhantomData))
+    }
+}
+
+/// Routes that answer with JSON only.
+#[derive(Debug, Clone, Copy)]
+pub struct JsonOnly;
+
+impl Offers for JsonOnly {
+    const OFFERS: &'static [&'static str] = &["application/json"];
 }
 
 /// Picks what to answer with from `offers` (in order of preference) by the request's

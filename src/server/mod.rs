@@ -31,6 +31,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use axum::Router;
+use axum::serve::ListenerExt;
 use tokio::net::TcpListener;
 use tower_http::catch_panic::CatchPanicLayer;
 
@@ -39,7 +40,8 @@ use admission::Admission;
 use metrics::Metrics;
 use shutdown::{Phase, Shutdown};
 
-/// After the grace period, how long cut streams get to close before we exit anyway.
+/// After the grace period, how long cut streams get to close, and cut renders to stop,
+/// before we exit anyway.
 const CUT_WAIT: Duration = Duration::from_secs(5);
 
 /// What every handler shares; cheap to clone.
@@ -137,6 +139,7 @@ pub async fn run(
     signal: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
     let shutdown = state.shutdown.clone();
+    let metrics = state.metrics.clone();
     let grace = state.config.grace();
     let draining = {
         let shutdown = shutdown.clone();
@@ -149,24 +152,44 @@ pub async fn run(
             shutdown.advance(Phase::Draining);
         }
     };
+    // Streamed bodies go out as many small writes (the head, the PNG header, each band):
+    // without TCP_NODELAY, Nagle's algorithm holds each one back until the client's
+    // delayed ACK, about 40 ms per response.
+    let listener = listener.tap_io(|tcp| {
+        if let Err(e) = tcp.set_nodelay(true) {
+            tracing::debug!(error = %e, "cannot set TCP_NODELAY");
+        }
+    });
     let server = axum::serve(listener, app(state)).with_graceful_shutdown(draining);
     let mut server = std::pin::pin!(server.into_future());
-    tokio::select! {
-        r = &mut server => return r.context("the server failed"),
-        _ = shutdown.reached(Phase::Draining) => {}
-    }
-    match tokio::time::timeout(grace, &mut server).await {
-        Ok(r) => r.context("the server failed")?,
-        Err(_) => {
-            tracing::warn!("the grace period is over: cutting the responses still in flight");
-            shutdown.advance(Phase::Stopping);
-            if tokio::time::timeout(CUT_WAIT, &mut server).await.is_err() {
-                tracing::warn!("some connections are still open; exiting anyway");
+    // Either the server ends by itself (with no connections open it ends as soon as the
+    // drain begins), or the drain begins first and gets the grace period.
+    let ended = tokio::select! {
+        r = &mut server => Some(r),
+        _ = shutdown.reached(Phase::Draining) => None,
+    };
+    let result = match ended {
+        Some(r) => r,
+        None => match tokio::time::timeout(grace, &mut server).await {
+            Ok(r) => r,
+            Err(_) => {
+                tracing::warn!("the grace period is over: cutting the responses still in flight");
+                shutdown.advance(Phase::Stopping);
+                if tokio::time::timeout(CUT_WAIT, &mut server).await.is_err() {
+                    tracing::warn!("some connections are still open; exiting anyway");
+                }
+                Ok(())
             }
-        }
+        },
+    };
+    // Cut renders stop within a tile; let them release their slots (and log why they
+    // stopped) before saying so, but not for ever.
+    let wind_down = tokio::time::Instant::now() + CUT_WAIT;
+    while metrics.in_flight.get() > 0 && tokio::time::Instant::now() < wind_down {
+        tokio::time::sleep(Duration::from_millis(10)).await;
     }
     tracing::info!("stopped");
-    Ok(())
+    result.context("the server failed")
 }
 
 /// Resolves on SIGTERM or Ctrl-C (SIGINT).

@@ -34,7 +34,7 @@ use tokio::sync::oneshot;
 use super::AppState;
 use super::admission::RenderSlot;
 use super::error::ApiError;
-use super::extract::{RegionQuery, RequestInfo, SceneBody, deadline_exceeded, negotiate};
+use super::extract::{Accepted, Offers, RegionQuery, RequestInfo, SceneBody, deadline_exceeded};
 use super::metrics::Metrics;
 use super::shutdown::Phase;
 use super::stream::{self, Aborter, BodyWriter};
@@ -52,15 +52,25 @@ pub fn router() -> Router<AppState> {
         .route("/v1/hits", post(hits))
 }
 
-/// The media types `/v1/render` answers with.
-pub const RENDER_TYPES: &[&str] = &["image/png"];
+/// What `/v1/render` answers with.
+#[derive(Debug, Clone, Copy)]
+pub struct PngOnly;
 
-/// The media types `/v1/hits` answers with, the default first (SPEC §5).
-pub const HIT_TYPES: &[&str] = &[
-    "application/json",
-    "application/x-ndjson",
-    "application/x-npy",
-];
+impl Offers for PngOnly {
+    const OFFERS: &'static [&'static str] = &["image/png"];
+}
+
+/// What `/v1/hits` answers with, the default first (SPEC §5).
+#[derive(Debug, Clone, Copy)]
+pub struct HitTypes;
+
+impl Offers for HitTypes {
+    const OFFERS: &'static [&'static str] = &[
+        "application/json",
+        "application/x-ndjson",
+        "application/x-npy",
+    ];
+}
 
 /// The image's width in pixels (of the region when one was asked for).
 pub const X_RAYTILE_WIDTH: HeaderName = HeaderName::from_static("x-raytile-width");
@@ -99,15 +109,18 @@ impl Output {
     }
 }
 
+// The extractors run in argument order: the cheap checks of the head (query, `Accept`)
+// before the body is read and validated.
+
 /// `POST /v1/render`.
 async fn render(
     State(app): State<AppState>,
     info: RequestInfo,
     query: RegionQuery,
+    _: Accepted<PngOnly>,
     headers: HeaderMap,
     body: SceneBody,
 ) -> Result<Response, ApiError> {
-    negotiate(&headers, RENDER_TYPES)?;
     start(app, info, query, &headers, body, Output::Png).await
 }
 
@@ -116,10 +129,11 @@ async fn hits(
     State(app): State<AppState>,
     info: RequestInfo,
     query: RegionQuery,
+    Accepted(media, _): Accepted<HitTypes>,
     headers: HeaderMap,
     body: SceneBody,
 ) -> Result<Response, ApiError> {
-    let format = match negotiate(&headers, HIT_TYPES)? {
+    let format = match media {
         "application/x-ndjson" => HitFormat::Ndjson,
         "application/x-npy" => HitFormat::Npy,
         _ => HitFormat::Json,

@@ -14,13 +14,12 @@
 use axum::Json;
 use axum::Router;
 use axum::extract::State;
-use axum::http::HeaderMap;
 use axum::routing::post;
 use serde::Serialize;
 
 use super::AppState;
 use super::error::ApiError;
-use super::extract::{SceneBody, negotiate};
+use super::extract::{Accepted, JsonOnly, SceneBody};
 use crate::scene::{Scene, SceneDoc};
 
 /// The routes: `POST /v1/validate`.
@@ -108,10 +107,9 @@ impl Statistics {
 
 async fn validate(
     State(app): State<AppState>,
-    headers: HeaderMap,
+    _: Accepted<JsonOnly>,
     body: SceneBody,
 ) -> Result<Json<Validated>, ApiError> {
-    negotiate(&headers, &["application/json"])?;
     let limits = app.config.limits();
     Ok(Json(Validated {
         valid: true,

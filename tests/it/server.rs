@@ -424,6 +424,14 @@ async fn every_error_is_a_problem_document() {
     )
     .await;
     assert_eq!(doc["supported"][2], "application/x-npy");
+    // Decided from the head, before the body is read: a broken body does not matter.
+    problem(
+        app.post_json("/v1/hits", "{", &[("accept", "text/html")])
+            .await,
+        406,
+        "not-acceptable",
+    )
+    .await;
     problem(
         app.post_json(
             "/v1/render",
@@ -847,6 +855,41 @@ async fn draining_refuses_new_work_and_finishes_what_runs() {
         .expect("the server stops")
         .unwrap()
         .unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn past_the_grace_period_in_flight_streams_are_cut_and_the_server_stops() {
+    let mut app = TestApp::with(ServeArgs {
+        grace_seconds: 0.5,
+        ..config()
+    })
+    .await;
+    let mut res = app
+        .post_scene("/v1/render", &sphere_grid(4096, 4096, 10, 3))
+        .await;
+    assert_eq!(res.status(), 200);
+    res.chunk().await.unwrap();
+    app.signal_shutdown();
+    let mut outcome = Ok(());
+    let start = Instant::now();
+    while start.elapsed() < Duration::from_secs(90) {
+        match res.chunk().await {
+            Ok(Some(_)) => {}
+            Ok(None) => break,
+            Err(e) => {
+                outcome = Err(e);
+                break;
+            }
+        }
+    }
+    assert!(outcome.is_err(), "the cut stream ended like a complete one");
+    let task = app.task.take().unwrap();
+    tokio::time::timeout(Duration::from_secs(60), task)
+        .await
+        .expect("the server stops")
+        .unwrap()
+        .unwrap();
+    assert_eq!(app.metric_after_stop("raytile_renders_in_flight"), 0.0);
 }
 
 /// Spawns `raytile serve` on a free port and returns it with its address; its standard

@@ -126,6 +126,14 @@ impl TestApp {
         metric_value(&text, name).unwrap_or_else(|| panic!("no metric {name} in:\n{text}"))
     }
 
+    /// The value of an unlabelled metric read from the state, not over HTTP (for
+    /// after the server has stopped listening).
+    pub fn metric_after_stop(&self, name: &str) -> f64 {
+        let text = String::from_utf8(self.state.metrics.encode().expect("metrics"))
+            .expect("UTF-8 metrics");
+        metric_value(&text, name).unwrap_or_else(|| panic!("no metric {name}"))
+    }
+
     /// Waits (polling, at most `limit`) until `cond` holds of `name`'s value.
     pub async fn wait_for_metric(
         &self,
