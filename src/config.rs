@@ -21,6 +21,8 @@ pub const DEFAULT_QUEUE: usize = 16;
 pub const DEFAULT_DEADLINE_SECONDS: f64 = 300.0;
 /// How long in-flight responses may run on after SIGTERM.
 pub const DEFAULT_GRACE_SECONDS: f64 = 25.0;
+/// How long a response may wait for a client that takes nothing.
+pub const DEFAULT_STALL_SECONDS: f64 = 15.0;
 
 /// `raytile serve`: the HTTP service (SPEC §6–7).
 #[derive(Debug, Clone, clap::Args)]
@@ -75,6 +77,11 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYTILE_GRACE_SECONDS", default_value_t = DEFAULT_GRACE_SECONDS, value_parser = parse_seconds)]
     pub grace_seconds: f64,
 
+    /// Seconds a response may wait for a client that takes nothing before its render is
+    /// stopped: a client that stops reading must not hold the trace threads.
+    #[arg(long, env = "RAYTILE_STALL_SECONDS", default_value_t = DEFAULT_STALL_SECONDS, value_parser = parse_seconds)]
+    pub stall_seconds: f64,
+
     /// Tile edge in pixels.
     #[arg(long, env = "RAYTILE_TILE", default_value_t = DEFAULT_TILE_PX, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub tile: u32,
@@ -103,6 +110,7 @@ impl Default for ServeArgs {
             deadline_seconds: DEFAULT_DEADLINE_SECONDS,
             threads: None,
             grace_seconds: DEFAULT_GRACE_SECONDS,
+            stall_seconds: DEFAULT_STALL_SECONDS,
             tile: DEFAULT_TILE_PX,
             log_format: "text".into(),
         }
@@ -144,6 +152,11 @@ impl ServeArgs {
     /// The per-request deadline.
     pub fn deadline(&self) -> Duration {
         Duration::from_secs_f64(self.deadline_seconds)
+    }
+
+    /// How long a response waits for a client that takes nothing.
+    pub fn stall(&self) -> Duration {
+        Duration::from_secs_f64(self.stall_seconds)
     }
 
     /// The shutdown grace period.

@@ -159,7 +159,7 @@ async fn start(
     let queue = queued.elapsed();
     let trailers = wants_trailers(headers);
 
-    let (writer, stream_body) = stream::channel();
+    let (writer, stream_body) = stream::channel(app.config.stall());
     let cut = Cut::new(writer.aborter());
     let done = spawn_watch(&app, cut.clone(), deadline);
     let job = Job {
@@ -331,6 +331,8 @@ impl Job {
                 // cut; anything else is a fault.
                 let why = if writer.is_closed() {
                     "the client went away"
+                } else if writer.has_stalled() {
+                    "the client stopped reading"
                 } else if let Some(why) = cut.why.get() {
                     why
                 } else if matches!(e, Failure::Stopped(Stopped::Cancelled)) {

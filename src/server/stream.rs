@@ -45,14 +45,20 @@ enum Item {
     Fail(io::Error),
 }
 
-/// A body fed from another thread: the writer and the body it feeds.
-pub fn channel() -> (BodyWriter, StreamBody) {
+/// A body fed from another thread: the writer and the body it feeds. Called on the
+/// runtime, whose timer then bounds each wait of the writer for the client by `stall`:
+/// a client that stops reading must not hold the trace threads, which every other
+/// render needs, until its deadline.
+pub fn channel(stall: std::time::Duration) -> (BodyWriter, StreamBody) {
     let (tx, rx) = mpsc::channel(CHANNEL_CHUNKS);
     (
         BodyWriter {
             tx,
             pending: Arc::new(Mutex::new(Vec::with_capacity(CHUNK_BYTES))),
             abort: Arc::new(watch::Sender::new(false)),
+            runtime: tokio::runtime::Handle::try_current().ok(),
+            stall,
+            stalled: Arc::new(std::sync::atomic::AtomicBool::new(false)),
         },
         StreamBody {
             rx,
@@ -68,6 +74,12 @@ pub struct BodyWriter {
     tx: mpsc::Sender<Item>,
     pending: Arc<Mutex<Vec<u8>>>,
     abort: Arc<watch::Sender<bool>>,
+    /// The runtime whose timer bounds a wait (none outside a runtime, e.g. in unit tests).
+    runtime: Option<tokio::runtime::Handle>,
+    /// The longest wait for room in the channel.
+    stall: std::time::Duration,
+    /// Set when a wait ran out: the client stopped reading.
+    stalled: Arc<std::sync::atomic::AtomicBool>,
 }
 
 /// Ends any wait of a [`BodyWriter`] for room in the channel, now and later. Holding one
@@ -94,6 +106,13 @@ fn aborted() -> io::Error {
     io::Error::new(io::ErrorKind::TimedOut, "the response was cut")
 }
 
+fn stalled() -> io::Error {
+    io::Error::new(
+        io::ErrorKind::TimedOut,
+        "the client took nothing for too long",
+    )
+}
+
 impl BodyWriter {
     /// A handle that ends waits for the client.
     pub fn aborter(&self) -> Aborter {
@@ -112,7 +131,7 @@ impl BodyWriter {
             Err(mpsc::error::TrySendError::Full(item)) => item,
         };
         let mut abort = self.abort.subscribe();
-        futures::executor::block_on(async {
+        let wait = async {
             let send = std::pin::pin!(self.tx.send(item));
             let stop = std::pin::pin!(abort.wait_for(|a| *a));
             match select(send, stop).await {
@@ -120,7 +139,25 @@ impl BodyWriter {
                 Either::Left((Err(_), _)) => Err(gone()),
                 Either::Right(_) => Err(aborted()),
             }
-        })
+        };
+        match &self.runtime {
+            // A rayon thread is no runtime thread, so it may block on the runtime's handle.
+            Some(rt) => rt.block_on(async {
+                tokio::time::timeout(self.stall, wait)
+                    .await
+                    .unwrap_or_else(|_| {
+                        self.stalled
+                            .store(true, std::sync::atomic::Ordering::Relaxed);
+                        Err(stalled())
+                    })
+            }),
+            None => futures::executor::block_on(wait),
+        }
+    }
+
+    /// Whether a wait for the client ran out (it stopped reading).
+    pub fn has_stalled(&self) -> bool {
+        self.stalled.load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// Whether the receiving body is gone (the client disconnected or the response was
@@ -249,7 +286,7 @@ mod tests {
 
     #[test]
     fn bytes_arrive_in_order_then_trailers() {
-        let (mut w, body) = channel();
+        let (mut w, body) = channel(std::time::Duration::from_secs(15));
         let writer = std::thread::spawn(move || {
             for i in 0..1000u32 {
                 w.write_all(&i.to_le_bytes()).unwrap();
@@ -274,7 +311,7 @@ mod tests {
 
     #[test]
     fn a_writer_dropped_without_finishing_fails_the_body() {
-        let (mut w, body) = channel();
+        let (mut w, body) = channel(std::time::Duration::from_secs(15));
         std::thread::spawn(move || {
             w.write_all(b"half").unwrap();
             w.send_pending().unwrap();
@@ -286,7 +323,7 @@ mod tests {
 
     #[test]
     fn abort_ends_a_wait_for_a_client_that_does_not_read() {
-        let (mut w, _body) = channel();
+        let (mut w, _body) = channel(std::time::Duration::from_secs(15));
         let aborter = w.aborter();
         let writer = std::thread::spawn(move || {
             let chunk = vec![0u8; CHUNK_BYTES];
@@ -303,7 +340,7 @@ mod tests {
 
     #[test]
     fn writing_to_a_dropped_body_fails() {
-        let (mut w, body) = channel();
+        let (mut w, body) = channel(std::time::Duration::from_secs(15));
         drop(body);
         assert!(w.is_closed());
         assert_eq!(w.write(b"x").unwrap_err().kind(), io::ErrorKind::BrokenPipe);

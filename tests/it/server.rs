@@ -792,6 +792,41 @@ async fn a_client_that_leaves_stops_the_tracing() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_stops_reading_releases_the_trace_threads() {
+    let app = TestApp::with(ServeArgs {
+        stall_seconds: 0.5,
+        ..config()
+    })
+    .await;
+    // JSON hit data of a 4096² frame is gigabytes: the buffers fill at once.
+    let mut res = app
+        .post_scene("/v1/hits", &sphere_grid(4096, 4096, 10, 3))
+        .await;
+    assert_eq!(res.status(), 200);
+    res.chunk().await.unwrap();
+    // The response is held but not read: the render must still end, long before its
+    // deadline, and free its slot.
+    app.wait_for_metric("raytile_renders_in_flight", Duration::from_secs(60), |v| {
+        v == 0.0
+    })
+    .await;
+    let text = app.get("/metrics").await.text().await.unwrap();
+    assert!(
+        text.contains(
+            "raytile_render_duration_seconds_count{outcome=\"cancelled\",output=\"json\"} 1"
+        ),
+        "{text}"
+    );
+    // Other renders go on.
+    let ok = app
+        .post_scene("/v1/render", &sphere_grid(64, 48, 2, 1))
+        .await;
+    assert_eq!(ok.status(), 200);
+    assert!(!ok.bytes().await.unwrap().is_empty());
+    drop(res);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn thirty_two_concurrent_small_renders_all_succeed() {
     let app = TestApp::with(ServeArgs {
         queue: 32,
