@@ -71,23 +71,6 @@ pub enum ReportFormat {
     Prairielearn,
 }
 
-/// The submission forms `grade` reads.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum SubmissionFormat {
-    /// Tell from the content.
-    Auto,
-    /// A PNG image.
-    Png,
-    /// Hit data as one JSON document.
-    Json,
-    /// Hit data as one JSON object per line.
-    Ndjson,
-    /// Hit data as a NumPy structured array.
-    Npy,
-    /// Hit data as CSV with a header.
-    Csv,
-}
-
 /// `raytile grade`.
 #[derive(Debug, clap::Args)]
 pub struct GradeArgs {
@@ -98,7 +81,7 @@ pub struct GradeArgs {
     submission: PathBuf,
     /// The submission's format (default: by its extension, else by its content).
     #[arg(long, value_enum)]
-    format: Option<SubmissionFormat>,
+    format: Option<Hint>,
     /// The report's form.
     #[arg(long, value_enum, default_value_t = ReportFormat::Json)]
     report: ReportFormat,
@@ -224,15 +207,7 @@ pub fn grade(a: GradeArgs) -> anyhow::Result<ExitCode> {
         std::fs::read(&a.submission)
             .with_context(|| format!("cannot read {}", a.submission.display()))?
     };
-    let hint = match a.format {
-        None => Hint::from_path(&a.submission),
-        Some(SubmissionFormat::Auto) => Hint::Auto,
-        Some(SubmissionFormat::Png) => Hint::Png,
-        Some(SubmissionFormat::Json) => Hint::Json,
-        Some(SubmissionFormat::Ndjson) => Hint::Ndjson,
-        Some(SubmissionFormat::Npy) => Hint::Npy,
-        Some(SubmissionFormat::Csv) => Hint::Csv,
-    };
+    let hint = a.format.unwrap_or_else(|| Hint::from_path(&a.submission));
     let what = a.submission.display();
     let submission = Submission::parse_for_frame(&bytes, hint, r.scene.width, r.scene.height)
         .with_context(|| format!("{what}"))?;

@@ -24,8 +24,9 @@ use super::GradeError;
 use super::image::{PNG_SIGNATURE, RgbImage};
 use crate::render::Rect;
 
-/// What the caller knows about the submission's format (a file extension, a media type).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+/// What the caller knows about the submission's format (a file extension, a media type,
+/// the command line's `--format`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Hint {
     /// Tell from the bytes.
