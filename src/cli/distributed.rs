@@ -15,7 +15,7 @@
 //!    (no connection, a timeout, a cut stream, 5xx, 429, 503, or a PNG that is not the
 //!    band's) is paused by [`RetryPolicy::verdict`] (its `Retry-After`, else a doubling
 //!    backoff), and the band goes back to the queue for a server that has not failed it
-//!    yet ([`pick`]). A band that fails `--attempts` times, or an answer that any server
+//!    yet (`pick`). A band that fails `--attempts` times, or an answer that any server
 //!    would give (other 4xx: the scene or the request is wrong), stops the render with
 //!    one line that names the band and the servers tried.
 //! 4. Each band's PNG is decoded and handed to [`PngSink`] as one tile. The sink writes
@@ -47,8 +47,7 @@ use crate::scene::{self, Limits};
 #[derive(Debug, Clone, clap::Args)]
 pub struct RemoteOptions {
     /// Render on these raytile servers instead of here: base URLs (`http://host:port`),
-    /// comma-separated. A load balancer's URL works too; give it more than once for more
-    /// requests in flight.
+    /// comma-separated. A load balancer's URL works too (raise `--per-server` for it).
     #[arg(long, value_delimiter = ',', value_name = "URL,...")]
     pub servers: Vec<String>,
     /// Bands to cut the frame into per server: more spread the work better over servers
