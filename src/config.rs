@@ -171,7 +171,7 @@ fn cores() -> usize {
 }
 
 /// Seconds as a positive, finite number (`300`, `0.5`), at most a year.
-fn parse_seconds(s: &str) -> Result<f64, String> {
+pub(crate) fn parse_seconds(s: &str) -> Result<f64, String> {
     let x: f64 = s
         .trim()
         .parse()

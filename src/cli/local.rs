@@ -27,6 +27,8 @@ pub struct RenderArgs {
     /// The PNG to write.
     #[arg(short, long)]
     output: PathBuf,
+    #[command(flatten, next_help_heading = "Rendering on servers")]
+    remote: super::distributed::RemoteOptions,
 }
 
 /// `raytile hits`.
@@ -58,7 +60,8 @@ pub fn load_scene(path: &Path) -> anyhow::Result<Scene> {
     scene::parse(&bytes, &Limits::NONE).map_err(|e| scene_error(path, e))
 }
 
-fn read_input(path: &Path) -> anyhow::Result<Vec<u8>> {
+/// The bytes of a scene file, or of standard input for `-`.
+pub(super) fn read_input(path: &Path) -> anyhow::Result<Vec<u8>> {
     if path == Path::new("-") {
         let mut b = Vec::new();
         std::io::stdin()
@@ -70,7 +73,8 @@ fn read_input(path: &Path) -> anyhow::Result<Vec<u8>> {
     }
 }
 
-fn scene_error(path: &Path, e: SceneError) -> anyhow::Error {
+/// A scene error as the command line reports it, naming the file.
+pub(super) fn scene_error(path: &Path, e: SceneError) -> anyhow::Error {
     match &e {
         SceneError::Syntax { .. } => anyhow::anyhow!("{}: {e}", path.display()),
         SceneError::Invalid(problems) => {
@@ -123,8 +127,11 @@ pub fn validate(a: ValidateArgs) -> anyhow::Result<ExitCode> {
     }
 }
 
-/// `raytile render`.
+/// `raytile render`: here, or with `--servers` on those servers.
 pub fn render(a: RenderArgs) -> anyhow::Result<ExitCode> {
+    if !a.remote.servers.is_empty() {
+        return super::distributed::render(&a.opts, &a.output, &a.remote);
+    }
     run_traced(
         "render",
         &a.opts,
@@ -191,19 +198,7 @@ fn run_traced(
     let t0 = Instant::now();
     let scene = Arc::new(load_scene(&opts.scene)?);
     let parse_s = t0.elapsed();
-    let frame = Rect::frame(scene.width, scene.height);
-    let region = opts.region.unwrap_or(frame);
-    if !region.within(&frame) {
-        bail!(
-            "the region {},{},{},{} does not lie within the {} × {} frame",
-            region.x,
-            region.y,
-            region.width,
-            region.height,
-            frame.width,
-            frame.height
-        );
-    }
+    let region = checked_region(opts, &scene)?;
     let pool = {
         let mut b = rayon::ThreadPoolBuilder::new();
         if let Some(n) = opts.threads {
@@ -258,6 +253,24 @@ fn run_traced(
         eprintln!("{line}");
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// `--region`, or the whole frame; an error when the region leaves the frame.
+pub(super) fn checked_region(opts: &TraceOptions, scene: &Scene) -> anyhow::Result<Rect> {
+    let frame = Rect::frame(scene.width, scene.height);
+    let region = opts.region.unwrap_or(frame);
+    if !region.within(&frame) {
+        bail!(
+            "the region {},{},{},{} does not lie within the {} × {} frame",
+            region.x,
+            region.y,
+            region.width,
+            region.height,
+            frame.width,
+            frame.height
+        );
+    }
+    Ok(region)
 }
 
 /// Runs the tile loop with a progress bar (on a terminal) and sink timing around `sink`.

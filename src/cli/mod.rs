@@ -1,7 +1,9 @@
 //! The command line: `render`, `hits` and `validate` a scene file, and the server
 //! commands `serve` (the default) and `healthcheck`. The subcommands live in their own
-//! files; `main.rs` only calls [`run`].
+//! files; `main.rs` only calls [`run`]. `render --servers` (in `distributed`) renders
+//! one frame across several servers.
 
+pub mod distributed;
 mod grade;
 mod local;
 mod serve;
@@ -24,7 +26,7 @@ pub struct Cli {
 /// The subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// Render a scene to a PNG.
+    /// Render a scene to a PNG, here or across servers (`--servers`).
     Render(local::RenderArgs),
     /// Write per-pixel hit data (JSON, NDJSON or NPY, by the output's extension).
     Hits(local::HitsArgs),

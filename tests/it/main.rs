@@ -2,6 +2,8 @@
 //! - `support`: helpers (the built binary, scene files, temporary outputs);
 //! - `support_server`: a `TestApp` (the real router on a loopback port), scene makers;
 //! - `cli`: `raytile render | hits | validate` as a user runs them;
+//! - `cluster`: two `raytile serve` processes behind nginx, and `render --servers`
+//!   finishing a frame while a replica dies (needs nginx installed);
 //! - `grade`: `raytile trace | grade` as an instructor runs them;
 //! - `geometry`: shapes under transforms against hand-computed answers;
 //! - `lecture`: the lecture's worked example;
@@ -16,6 +18,7 @@ mod support;
 mod support_server;
 
 mod cli;
+mod cluster;
 mod geometry;
 mod grade;
 mod lecture;

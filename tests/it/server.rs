@@ -3,9 +3,9 @@
 //! hide what is tested, raw TCP. Every wait is bounded; no assertion depends on how fast
 //! the machine is, only on the order things happen in.
 
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::net::TcpStream;
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use raytile::config::ServeArgs;
@@ -925,59 +925,6 @@ async fn past_the_grace_period_in_flight_streams_are_cut_and_the_server_stops() 
         .unwrap()
         .unwrap();
     assert_eq!(app.metric_after_stop("raytile_renders_in_flight"), 0.0);
-}
-
-/// Spawns `raytile serve` on a free port and returns it with its address; its standard
-/// output keeps being read into the returned channel.
-fn spawn_binary(
-    args: &[&str],
-) -> (
-    std::process::Child,
-    String,
-    std::sync::mpsc::Receiver<String>,
-) {
-    let mut child = raytile()
-        .args(["serve", "--addr", "127.0.0.1:0"])
-        .args(args)
-        .env("RUST_LOG", "info")
-        .env("RAYTILE_LOG_FORMAT", "text")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("raytile serve starts");
-    let stdout = child.stdout.take().unwrap();
-    let (tx, lines) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            if tx.send(line).is_err() {
-                break;
-            }
-        }
-    });
-    let addr = loop {
-        let line = lines
-            .recv_timeout(Duration::from_secs(60))
-            .expect("the server logs its address");
-        if let Some(i) = line.find("listening on http://") {
-            let rest = &line[i + "listening on http://".len()..];
-            break rest.split_whitespace().next().unwrap().to_owned();
-        }
-    };
-    (child, addr, lines)
-}
-
-fn wait_exit(child: &mut std::process::Child, limit: Duration) -> std::process::ExitStatus {
-    let start = Instant::now();
-    loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            return s;
-        }
-        if start.elapsed() > limit {
-            let _ = child.kill();
-            panic!("the server did not exit within {limit:?}");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
 }
 
 #[test]

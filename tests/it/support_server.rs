@@ -1,11 +1,14 @@
 //! Helpers for the server tests: a [`TestApp`] that runs the real router on an ephemeral
-//! port of 127.0.0.1, in this process, with its own metrics; a reqwest client with
-//! generous timeouts so that no test can hang; and scene generators.
+//! port of 127.0.0.1, in this process, with its own metrics; [`spawn_binary`], the real
+//! `raytile serve` as a child process; a reqwest client with generous timeouts so that
+//! no test can hang; and scene generators.
 
 #![allow(dead_code)]
 
+use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
-use std::time::Duration;
+use std::process::Stdio;
+use std::time::{Duration, Instant};
 
 use raytile::config::ServeArgs;
 use raytile::server::{self, AppState};
@@ -159,6 +162,61 @@ impl TestApp {
 impl Drop for TestApp {
     fn drop(&mut self) {
         self.signal_shutdown();
+    }
+}
+
+/// Spawns `raytile serve` (the built binary) on a free port of 127.0.0.1 and returns it
+/// with its address (`127.0.0.1:<port>`); its standard output keeps being read into the
+/// returned channel.
+pub fn spawn_binary(
+    args: &[&str],
+) -> (
+    std::process::Child,
+    String,
+    std::sync::mpsc::Receiver<String>,
+) {
+    let mut child = crate::support::raytile()
+        .args(["serve", "--addr", "127.0.0.1:0"])
+        .args(args)
+        .env("RUST_LOG", "info")
+        .env("RAYTILE_LOG_FORMAT", "text")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("raytile serve starts");
+    let stdout = child.stdout.take().unwrap();
+    let (tx, lines) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let addr = loop {
+        let line = lines
+            .recv_timeout(Duration::from_secs(60))
+            .expect("the server logs its address");
+        if let Some(i) = line.find("listening on http://") {
+            let rest = &line[i + "listening on http://".len()..];
+            break rest.split_whitespace().next().unwrap().to_owned();
+        }
+    };
+    (child, addr, lines)
+}
+
+/// Waits at most `limit` for `child` to exit; kills it and fails the test past that.
+pub fn wait_exit(child: &mut std::process::Child, limit: Duration) -> std::process::ExitStatus {
+    let start = Instant::now();
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return s;
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            panic!("the server did not exit within {limit:?}");
+        }
+        std::thread::sleep(Duration::from_millis(20));
     }
 }
 
