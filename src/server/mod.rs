@@ -5,7 +5,7 @@
 //! - [`app`] builds the router, the same one the tests talk to; [`serve`] binds it and
 //!   runs it until SIGTERM or Ctrl-C, then drains.
 //! - one file per group of routes: [`render`] (`/v1/render`, `/v1/hits`), [`trace`]
-//!   (`/v1/trace`), [`validate`], [`scenes`], [`health`],
+//!   (`/v1/trace`), [`grade`] (`/v1/grade`), [`validate`], [`scenes`], [`health`],
 //!   [`metrics`];
 //! - the machinery they share: [`extract`] (body, query, `Accept`), [`admission`]
 //!   (render slots and the queue), [`stream`] (rayon thread → response body), [`job`]
@@ -17,6 +17,7 @@
 pub mod admission;
 pub mod error;
 pub mod extract;
+pub mod grade;
 pub mod health;
 pub mod job;
 pub mod metrics;
@@ -101,6 +102,7 @@ pub fn app(state: AppState) -> Router {
     Router::new()
         .merge(render::router())
         .merge(trace::router())
+        .merge(grade::router())
         .merge(validate::router())
         .merge(scenes::router())
         .merge(health::router())
