@@ -394,15 +394,22 @@ struct Prepared {
     tolerances: Tolerances,
 }
 
-/// Parses the body: the JSON document or the form's parts, the tolerances (with the
-/// query's on top), the scene (against the server's limits), the submission (against the
-/// scene's frame). CPU work proportional to the body: called off tokio's threads.
+/// Parses the body in the order a client fixes things: the request's structure and the
+/// tolerances (400: the JSON document or the form's parts, the query's tolerances on top
+/// of the body's), then the scene (against the server's limits), then the submission
+/// (against the scene's frame). CPU work proportional to the body: called off tokio's
+/// threads.
 fn prepare(
     body: GradeBody,
     query: &GradeQuery,
     limits: &scene::Limits,
 ) -> Result<Prepared, ApiError> {
-    let (scene, submission, hint, tolerances) = match body {
+    // The scene and the submission as sent, with what is known of the submission's form.
+    enum Sent {
+        Form(Bytes, Bytes, Hint),
+        Json(Value, Value),
+    }
+    let (sent, tolerances) = match body {
         GradeBody::Form {
             scene,
             submission,
@@ -413,22 +420,29 @@ fn prepare(
                 Some(b) => Some(tolerances_part(&b)?),
                 None => None,
             };
-            let scene = scene::parse(&scene, limits).map_err(|e| scene_error(e, ""))?;
-            (scene, submission.to_vec(), hint, tolerances)
+            (Sent::Form(scene, submission, hint), tolerances)
         }
         GradeBody::Json(bytes) => {
             let env = envelope(&bytes)?;
-            let (submission, hint) =
-                submission_member(env.submission).map_err(ApiError::InvalidSubmission)?;
-            let scene =
-                scene::parse_value(env.scene, limits).map_err(|e| scene_error(e, "/scene"))?;
-            (scene, submission, hint, env.tolerances)
+            (Sent::Json(env.scene, env.submission), env.tolerances)
         }
     };
     let tolerances = query.tolerances(tolerances.unwrap_or_default());
     tolerances
         .check()
         .map_err(|e| ApiError::BadRequest(e.to_string()))?;
+    let (scene, submission, hint) = match sent {
+        Sent::Form(scene, submission, hint) => {
+            let scene = scene::parse(&scene, limits).map_err(|e| scene_error(e, ""))?;
+            (scene, submission, hint)
+        }
+        Sent::Json(scene, submission) => {
+            let scene = scene::parse_value(scene, limits).map_err(|e| scene_error(e, "/scene"))?;
+            let (submission, hint) =
+                submission_member(submission).map_err(ApiError::InvalidSubmission)?;
+            (scene, Bytes::from(submission), hint)
+        }
+    };
     let hint = query.format.unwrap_or(hint);
     let submission = Submission::parse_for_frame(&submission, hint, scene.width, scene.height)
         .map_err(ApiError::InvalidSubmission)?;
