@@ -2,7 +2,8 @@
 //! response: an `application/problem+json` document (RFC 9457) with a stable `type`
 //! URI, a `title`, the `status` and a `detail`, plus fields of its own where they help
 //! (`problems` with JSON pointers for an invalid scene, `line` and `column` for bad
-//! JSON, `limit_bytes` for a body that is too large, `supported` for media types).
+//! JSON, `limit_bytes` for a body that is too large, `supported` for media types,
+//! `reason` for a submission the grader cannot read).
 //!
 //! 4xx say what was wrong with the request; 5xx are logged here and say nothing of the
 //! server's insides.
@@ -20,6 +21,8 @@ use axum::response::{IntoResponse, Response};
 use serde::Serialize;
 use serde_json::{Map, Value, json};
 
+use crate::grade::GradeError;
+use crate::grade::explain::ExplainError;
 use crate::scene::{Problem, SceneError};
 
 /// Where the problem types live; `{BASE}{slug}` is each `type`.
@@ -34,9 +37,11 @@ pub const RETRY_AFTER_SECONDS: u64 = 1;
 /// Why a request failed, decided before the first byte of the answer.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ApiError {
-    /// The body is not JSON (400).
-    #[error("the body is not valid JSON: {message} at line {line}, column {column}")]
+    /// The body (or a part of it) is not JSON (400).
+    #[error("{what} is not valid JSON: {message} at line {line}, column {column}")]
     InvalidJson {
+        /// What was read: "the body", "the `scene` part".
+        what: &'static str,
         /// serde_json's reason.
         message: String,
         /// 1-based line.
@@ -67,15 +72,28 @@ pub enum ApiError {
         /// The limit.
         limit_bytes: usize,
     },
-    /// The body is not JSON by its `Content-Type` (415).
-    #[error("the body must be `application/json`, not `{got}`")]
+    /// The body is none of the route's media types by its `Content-Type` (415).
+    #[error("the body must be {}, not `{got}`", one_of(.supported))]
     UnsupportedMediaType {
         /// The request's `Content-Type` (empty when missing).
         got: String,
+        /// What the route reads.
+        supported: &'static [&'static str],
     },
     /// JSON, but not a scene we can render: every problem found (422).
     #[error("the scene has {} problem(s)", .0.len())]
     InvalidScene(Vec<Problem>),
+    /// The pixel to explain lies outside the image (422).
+    #[error("{0}")]
+    PixelOutside(ExplainError),
+    /// A submission the grader cannot read: empty, corrupt, the wrong size, … (422).
+    #[error("{0}")]
+    InvalidSubmission(GradeError),
+    /// The scene's reference answer could not be computed (422). Not the submission's
+    /// fault; it answers 422 rather than 500 because it follows from this scene, and
+    /// retrying the same request would fail the same way.
+    #[error("the reference answer of this scene could not be computed: {0}")]
+    ReferenceFailed(String),
     /// Every render slot is busy and the queue is full (503 + `Retry-After`).
     #[error("every render slot is busy and the queue is full")]
     Saturated,
@@ -98,12 +116,59 @@ impl From<SceneError> for ApiError {
                 line,
                 column,
             } => ApiError::InvalidJson {
+                what: "the body",
                 message,
                 line,
                 column,
             },
             SceneError::Invalid(problems) => ApiError::InvalidScene(problems),
         }
+    }
+}
+
+impl ApiError {
+    /// A grading failure as the client should see it: the submission's faults are 422
+    /// (`invalid-submission`, with a `reason`), tolerances out of range are 400 like any
+    /// bad parameter, a reference that could not be computed is 422 (`reference-failed`).
+    /// [`GradeError::Cancelled`] means the reference render was stopped, which only the
+    /// request's `deadline` does (the end of the shutdown grace period is answered by
+    /// whoever stops the job, before any result is read): 504.
+    pub fn grading(e: GradeError, deadline: Duration) -> ApiError {
+        match e {
+            GradeError::Cancelled => ApiError::DeadlineExceeded(deadline),
+            GradeError::Reference(why) => ApiError::ReferenceFailed(why),
+            GradeError::BadTolerance { .. } => ApiError::BadRequest(e.to_string()),
+            other => ApiError::InvalidSubmission(other),
+        }
+    }
+}
+
+/// `` `a` `` or `` `a` or `b` ``: the media types a route reads.
+fn one_of(types: &[&str]) -> String {
+    let quoted: Vec<String> = types.iter().map(|t| format!("`{t}`")).collect();
+    quoted.join(" or ")
+}
+
+/// A stable, machine-readable name for why a submission cannot be graded (the
+/// `reason` member of an invalid-submission problem).
+fn submission_reason(e: &GradeError) -> &'static str {
+    match e {
+        GradeError::Empty => "empty",
+        GradeError::UnknownFormat => "unknown-format",
+        GradeError::NotPng => "not-png",
+        GradeError::CorruptPng(_) => "corrupt-png",
+        GradeError::SizeMismatch { .. } => "size-mismatch",
+        GradeError::Syntax { .. } => "syntax",
+        GradeError::WrongShape(_) => "wrong-shape",
+        GradeError::MissingField { .. } => "missing-field",
+        GradeError::BadValue { .. } => "bad-value",
+        GradeError::Npy(_) => "npy",
+        GradeError::OutsideImage { .. } => "pixel-outside-image",
+        GradeError::DuplicatePixel { .. } => "duplicate-pixel",
+        GradeError::MissingPixels { .. } => "missing-pixels",
+        GradeError::BadTolerance { .. } => "bad-tolerance",
+        GradeError::Cancelled => "cancelled",
+        GradeError::Reference(_) => "reference",
     }
 }
 
@@ -117,7 +182,10 @@ impl ApiError {
             ApiError::NotAcceptable { .. } => StatusCode::NOT_ACCEPTABLE,
             ApiError::BodyTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
             ApiError::UnsupportedMediaType { .. } => StatusCode::UNSUPPORTED_MEDIA_TYPE,
-            ApiError::InvalidScene(_) => StatusCode::UNPROCESSABLE_ENTITY,
+            ApiError::InvalidScene(_)
+            | ApiError::PixelOutside(_)
+            | ApiError::InvalidSubmission(_)
+            | ApiError::ReferenceFailed(_) => StatusCode::UNPROCESSABLE_ENTITY,
             ApiError::Saturated | ApiError::ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
             ApiError::DeadlineExceeded(_) => StatusCode::GATEWAY_TIMEOUT,
             ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
@@ -137,6 +205,9 @@ impl ApiError {
                 ("unsupported-media-type", "Unsupported media type")
             }
             ApiError::InvalidScene(_) => ("invalid-scene", "Invalid scene"),
+            ApiError::PixelOutside(_) => ("pixel-outside-image", "Pixel outside the image"),
+            ApiError::InvalidSubmission(_) => ("invalid-submission", "Invalid submission"),
+            ApiError::ReferenceFailed(_) => ("reference-failed", "Reference not computed"),
             ApiError::Saturated => ("saturated", "Server saturated"),
             ApiError::ShuttingDown => ("shutting-down", "Server shutting down"),
             ApiError::DeadlineExceeded(_) => ("deadline-exceeded", "Deadline exceeded"),
@@ -160,11 +231,16 @@ impl ApiError {
                 json!({ "line": line, "column": column })
             }
             ApiError::NotAcceptable { supported, .. } => json!({ "supported": supported }),
-            ApiError::UnsupportedMediaType { .. } => {
-                json!({ "supported": ["application/json"] })
-            }
+            ApiError::UnsupportedMediaType { supported, .. } => json!({ "supported": supported }),
             ApiError::BodyTooLarge { limit_bytes } => json!({ "limit_bytes": limit_bytes }),
             ApiError::InvalidScene(problems) => json!({ "problems": problems }),
+            ApiError::PixelOutside(ExplainError::OutsideImage {
+                u,
+                v,
+                width,
+                height,
+            }) => json!({ "u": u, "v": v, "width": width, "height": height }),
+            ApiError::InvalidSubmission(e) => json!({ "reason": submission_reason(e) }),
             ApiError::Saturated | ApiError::ShuttingDown => {
                 json!({ "retry_after_seconds": RETRY_AFTER_SECONDS })
             }
@@ -207,6 +283,11 @@ impl IntoResponse for ApiError {
         if status.is_server_error() && !matches!(self, ApiError::Saturated | ApiError::ShuttingDown)
         {
             tracing::error!(error = %self, status = status.as_u16(), "request failed");
+        }
+        if let ApiError::ReferenceFailed(why) = &self {
+            // Answered as the scene's problem, but a renderer that cannot finish a
+            // validated scene is a fault of ours too: make it visible in the log.
+            tracing::error!(error = %why, "the reference could not be computed");
         }
         let body = serde_json::to_vec(&self.problem()).unwrap_or_default();
         let mut res = (status, body).into_response();
@@ -257,6 +338,7 @@ mod tests {
     fn every_problem_has_the_rfc9457_members() {
         let all = [
             ApiError::InvalidJson {
+                what: "the body",
                 message: "x".into(),
                 line: 1,
                 column: 2,
@@ -269,8 +351,19 @@ mod tests {
                 supported: &["application/json"],
             },
             ApiError::BodyTooLarge { limit_bytes: 1 },
-            ApiError::UnsupportedMediaType { got: "x".into() },
+            ApiError::UnsupportedMediaType {
+                got: "x".into(),
+                supported: &["application/json"],
+            },
             ApiError::InvalidScene(vec![Problem::new("/image", "x")]),
+            ApiError::PixelOutside(ExplainError::OutsideImage {
+                u: 5,
+                v: 0,
+                width: 5,
+                height: 5,
+            }),
+            ApiError::InvalidSubmission(GradeError::Empty),
+            ApiError::ReferenceFailed("x".into()),
             ApiError::Saturated,
             ApiError::ShuttingDown,
             ApiError::DeadlineExceeded(Duration::from_secs(1)),

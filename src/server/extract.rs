@@ -8,15 +8,18 @@
 //! - [`SceneBody`]: the body as a validated scene: `Content-Type` first (415), then the
 //!   size limit (413), then JSON syntax (400 with line and column), then the scene's
 //!   meaning and the server's limits (422 with every problem). All of it before
-//!   admission, so a bad request never takes a render slot.
+//!   admission, so a bad request never takes a render slot;
+//! - the pieces other extractors are made of: [`query_pairs`] and the parsers of single
+//!   parameters, [`media_essence`], [`read_limited`] (the body behind the size limit and
+//!   the deadline), [`deadline_of`].
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use axum::body::Body;
+use axum::body::{Body, Bytes};
 use axum::extract::{FromRequest, FromRequestParts, Query, Request};
 use axum::http::request::Parts;
-use axum::http::{HeaderMap, header};
+use axum::http::{HeaderMap, Uri, header};
 
 use super::AppState;
 use super::error::ApiError;
@@ -59,10 +62,8 @@ impl<S: Send + Sync> FromRequestParts<S> for RegionQuery {
     type Rejection = ApiError;
 
     async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, ApiError> {
-        let Query(pairs) = Query::<Vec<(String, String)>>::try_from_uri(&parts.uri)
-            .map_err(|e| ApiError::BadRequest(format!("cannot read the query string: {e}")))?;
         let mut q = RegionQuery::default();
-        for (k, v) in pairs {
+        for (k, v) in query_pairs(&parts.uri)? {
             match k.as_str() {
                 "region" if q.region.is_none() => {
                     q.region = Some(crate::cli::parse_region(&v).map_err(|e| {
@@ -82,6 +83,51 @@ impl<S: Send + Sync> FromRequestParts<S> for RegionQuery {
             }
         }
         Ok(q)
+    }
+}
+
+/// The query string as `(name, value)` pairs, percent-decoded, in order.
+pub fn query_pairs(uri: &Uri) -> Result<Vec<(String, String)>, ApiError> {
+    let Query(pairs) = Query::<Vec<(String, String)>>::try_from_uri(uri)
+        .map_err(|e| ApiError::BadRequest(format!("cannot read the query string: {e}")))?;
+    Ok(pairs)
+}
+
+/// Sets `slot` from query parameter `name` once; a second value is an error (which one
+/// the client meant is not ours to guess).
+pub fn once<T>(slot: &mut Option<T>, name: &str, value: T) -> Result<(), ApiError> {
+    if slot.is_some() {
+        return Err(ApiError::BadRequest(format!(
+            "query parameter `{name}` is given more than once"
+        )));
+    }
+    *slot = Some(value);
+    Ok(())
+}
+
+/// Parses query parameter `name` (a number); the error names the parameter and what it
+/// must be.
+pub fn parse_param<T: std::str::FromStr>(
+    name: &str,
+    value: &str,
+    what: &str,
+) -> Result<T, ApiError> {
+    value.trim().parse().map_err(|_| {
+        ApiError::BadRequest(format!(
+            "query parameter `{name}` must be {what}, not `{value}`"
+        ))
+    })
+}
+
+/// Parses a boolean query parameter: `true` or `false` (also `1`, `0`); the bare name
+/// (`?edge_forgiving`) means true.
+pub fn parse_flag(name: &str, value: &str) -> Result<bool, ApiError> {
+    match value.trim().to_ascii_lowercase().as_str() {
+        "" | "true" | "1" => Ok(true),
+        "false" | "0" => Ok(false),
+        _ => Err(ApiError::BadRequest(format!(
+            "query parameter `{name}` must be `true` or `false`, not `{value}`"
+        ))),
     }
 }
 
@@ -190,15 +236,29 @@ pub fn negotiate(
     chosen.map(|(o, _)| o).ok_or_else(not_acceptable)
 }
 
-/// Whether `Content-Type` says JSON: `application/json` or any `application/…+json`,
-/// with any parameters (`; charset=utf-8`).
-pub fn is_json(content_type: &str) -> bool {
-    let essence = content_type
+/// The media type without parameters, lower case: `multipart/form-data; boundary=x` →
+/// `multipart/form-data`.
+pub fn media_essence(content_type: &str) -> String {
+    content_type
         .split(';')
         .next()
         .unwrap_or("")
         .trim()
-        .to_ascii_lowercase();
+        .to_ascii_lowercase()
+}
+
+/// The request's `Content-Type` (empty when missing).
+pub fn content_type(headers: &HeaderMap) -> String {
+    headers
+        .get(header::CONTENT_TYPE)
+        .map(|v| String::from_utf8_lossy(v.as_bytes()).into_owned())
+        .unwrap_or_default()
+}
+
+/// Whether `Content-Type` says JSON: `application/json` or any `application/…+json`,
+/// with any parameters (`; charset=utf-8`).
+pub fn is_json(content_type: &str) -> bool {
+    let essence = media_essence(content_type);
     essence == "application/json"
         || (essence.starts_with("application/") && essence.ends_with("+json"))
 }
@@ -216,29 +276,16 @@ impl FromRequest<AppState> for SceneBody {
     type Rejection = ApiError;
 
     async fn from_request(req: Request, app: &AppState) -> Result<Self, ApiError> {
-        let info = req.extensions().get::<RequestInfo>().cloned();
-        let start = info.as_ref().map_or_else(Instant::now, |i| i.start);
-        let deadline = tokio::time::Instant::from_std(start + app.config.deadline());
-        let content_type = req
-            .headers()
-            .get(header::CONTENT_TYPE)
-            .map(|v| String::from_utf8_lossy(v.as_bytes()).into_owned())
-            .unwrap_or_default();
+        let deadline = deadline_of(&req, app);
+        let content_type = content_type(req.headers());
         if !is_json(&content_type) {
-            return Err(ApiError::UnsupportedMediaType { got: content_type });
-        }
-        let limit = app.config.max_body_bytes;
-        let declared = req
-            .headers()
-            .get(header::CONTENT_LENGTH)
-            .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.trim().parse::<u64>().ok());
-        if declared.is_some_and(|n| n > limit as u64) {
-            // Refuse before reading a byte of it.
-            return Err(ApiError::BodyTooLarge { limit_bytes: limit });
+            return Err(ApiError::UnsupportedMediaType {
+                got: content_type,
+                supported: &["application/json"],
+            });
         }
         let t = Instant::now();
-        let bytes = read_body(req.into_body(), limit, deadline, app).await?;
+        let (_, bytes) = read_limited(req, app).await?;
         let limits = app.config.limits();
         // Validation is CPU work proportional to the body (16 MiB of mesh takes a while):
         // keep it off the threads that move bytes.
@@ -256,6 +303,35 @@ impl FromRequest<AppState> for SceneBody {
     }
 }
 
+/// When the request must have its answer: its arrival plus the server's deadline.
+pub fn deadline_of(req: &Request, app: &AppState) -> tokio::time::Instant {
+    let start = req
+        .extensions()
+        .get::<RequestInfo>()
+        .map_or_else(Instant::now, |i| i.start);
+    tokio::time::Instant::from_std(start + app.config.deadline())
+}
+
+/// Reads the whole body behind `--max-body-bytes` and the request's deadline: 413 at
+/// once when `Content-Length` declares more than the limit (before a byte is read), or
+/// as soon as more arrives; 504 when the deadline passes while it arrives.
+pub async fn read_limited(req: Request, app: &AppState) -> Result<(Parts, Bytes), ApiError> {
+    let deadline = deadline_of(&req, app);
+    let limit = app.config.max_body_bytes;
+    let declared = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<u64>().ok());
+    if declared.is_some_and(|n| n > limit as u64) {
+        // Refuse before reading a byte of it.
+        return Err(ApiError::BodyTooLarge { limit_bytes: limit });
+    }
+    let (parts, body) = req.into_parts();
+    let bytes = read_body(body, limit, deadline, app).await?;
+    Ok((parts, bytes))
+}
+
 /// Counts and builds the 504 of a request whose deadline passed before its answer began.
 pub fn deadline_exceeded(app: &AppState) -> ApiError {
     app.metrics.reject("deadline");
@@ -267,7 +343,7 @@ async fn read_body(
     limit: usize,
     deadline: tokio::time::Instant,
     app: &AppState,
-) -> Result<axum::body::Bytes, ApiError> {
+) -> Result<Bytes, ApiError> {
     match tokio::time::timeout_at(deadline, axum::body::to_bytes(body, limit)).await {
         Err(_) => Err(deadline_exceeded(app)),
         Ok(Ok(b)) => Ok(b),

@@ -4,10 +4,12 @@
 //! Where to start reading:
 //! - [`app`] builds the router, the same one the tests talk to; [`serve`] binds it and
 //!   runs it until SIGTERM or Ctrl-C, then drains.
-//! - one file per group of routes: [`render`] (`/v1/render`, `/v1/hits`), [`validate`],
-//!   [`scenes`], [`health`], [`metrics`];
+//! - one file per group of routes: [`render`] (`/v1/render`, `/v1/hits`), [`trace`]
+//!   (`/v1/trace`), [`grade`] (`/v1/grade`), [`validate`], [`scenes`], [`health`],
+//!   [`metrics`];
 //! - the machinery they share: [`extract`] (body, query, `Accept`), [`admission`]
-//!   (render slots and the queue), [`stream`] (rayon thread → response body),
+//!   (render slots and the queue), [`stream`] (rayon thread → response body), [`job`]
+//!   (CPU work that answers in one piece, admitted like a render),
 //!   [`error`] (every failure → `application/problem+json`, in one place),
 //!   [`observe`] (request ids, log lines, request counts), [`shutdown`] (the phases of
 //!   a graceful stop).
@@ -15,13 +17,16 @@
 pub mod admission;
 pub mod error;
 pub mod extract;
+pub mod grade;
 pub mod health;
+pub mod job;
 pub mod metrics;
 pub mod observe;
 pub mod render;
 pub mod scenes;
 pub mod shutdown;
 pub mod stream;
+pub mod trace;
 pub mod validate;
 
 use std::future::{Future, IntoFuture};
@@ -98,6 +103,8 @@ impl AppState {
 pub fn app(state: AppState) -> Router {
     Router::new()
         .merge(render::router())
+        .merge(trace::router())
+        .merge(grade::router())
         .merge(validate::router())
         .merge(scenes::router())
         .merge(health::router())

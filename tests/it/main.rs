@@ -12,6 +12,8 @@
 //! - `openapi`: `api/openapi.yaml` and the server agree;
 //! - `server`: the HTTP service as a client sees it, and the binary's `serve` and
 //!   `healthcheck`;
+//! - `server_grade`: `POST /v1/trace` and `POST /v1/grade` as an instructor's scripts
+//!   use them;
 //! - `validation`: every class of bad document, with its pointer.
 
 mod support;
@@ -26,4 +28,5 @@ mod openapi;
 mod properties;
 mod schema;
 mod server;
+mod server_grade;
 mod validation;

@@ -18,10 +18,6 @@ use tower::ServiceExt;
 
 use crate::support_server::*;
 
-/// Operations implemented elsewhere and wired into the router later: the agreement
-/// test skips them until they are (their documents are still checked for shape).
-const NOT_YET_SERVED: &[&str] = &["/v1/trace", "/v1/grade"];
-
 /// The base the document's relative `$ref`s resolve against.
 const BASE: &str = "https://raytile.example/api/";
 
@@ -206,28 +202,37 @@ async fn every_documented_operation_is_served() {
     let doc = document();
     let app = TestApp::spawn().await;
     let lecture = serde_json::to_vec(&shipped("lecture.json")).unwrap();
+    // A grading request in the JSON form: the lecture's own hit data.
+    let hits: Value = app
+        .post_json("/v1/hits", lecture.clone(), &[])
+        .await
+        .json()
+        .await
+        .unwrap();
+    let grading = serde_json::to_vec(&json!({
+        "scene": shipped("lecture.json"),
+        "submission": hits,
+    }))
+    .unwrap();
     for (path, item) in doc["paths"].as_object().unwrap() {
-        if NOT_YET_SERVED.contains(&path.as_str()) {
-            // Implemented on another branch; they answer 404 here until merged.
-            continue;
-        }
         for method in item.as_object().unwrap().keys() {
             let url = app.at(&path.replace("{name}", "showcase"));
+            let (url, body) = match path.as_str() {
+                "/v1/trace" => (format!("{url}?u=2&v=2"), lecture.clone()),
+                "/v1/grade" => (url, grading.clone()),
+                _ => (url, lecture.clone()),
+            };
             let req = match method.as_str() {
                 "get" => app.client.get(&url),
                 "post" => app
                     .client
                     .post(&url)
                     .header("content-type", "application/json")
-                    .body(lecture.clone()),
+                    .body(body),
                 other => panic!("{other} {path}: a method the test does not know"),
             };
             let answer = Answer::from_reqwest(req.send().await.unwrap()).await;
-            assert!(
-                answer.status != 404 && answer.status != 405,
-                "{method} {path} answered {}",
-                answer.status
-            );
+            assert_eq!(answer.status, 200, "{method} {path}");
             check(&doc, method, path, &answer);
         }
     }
@@ -270,6 +275,69 @@ async fn answers_for_every_example_scene_match_their_schemas() {
             assert_eq!(res.status(), 200, "{name} {accept}");
             check(&doc, "post", "/v1/hits", &Answer::from_reqwest(res).await);
         }
+
+        // The middle pixel, explained as JSON and as text.
+        let (w, h) = (side("width") as u32, side("height") as u32);
+        let centre = |k: &str| scene["image"][k].as_u64().unwrap() / 2;
+        let trace = format!("/v1/trace?u={}&v={}", centre("width"), centre("height"));
+        for accept in ["application/json", "text/plain"] {
+            let res = app
+                .post_json(&trace, body.clone(), &[("accept", accept)])
+                .await;
+            assert_eq!(res.status(), 200, "{name} {accept}");
+            check(&doc, "post", "/v1/trace", &Answer::from_reqwest(res).await);
+        }
+
+        // Grading at most 40 × 40 of it: its own image and hit data, in every report form.
+        let small_scene = resized(scene.clone(), w, h);
+        let small_body = serde_json::to_vec(&small_scene).unwrap();
+        let png = app
+            .post_json("/v1/render", small_body.clone(), &[])
+            .await
+            .bytes()
+            .await
+            .unwrap();
+        let hits: Value = app
+            .post_json("/v1/hits", small_body.clone(), &[])
+            .await
+            .json()
+            .await
+            .unwrap();
+        for query in [
+            "",
+            "?report=text",
+            "?report=gradescope&max_score=5",
+            "?report=prairielearn",
+            "?output=diff",
+            "?inline_diff=true&flip=false",
+        ] {
+            let form = reqwest::multipart::Form::new()
+                .part(
+                    "scene",
+                    reqwest::multipart::Part::bytes(small_body.clone()).file_name("scene.json"),
+                )
+                .part(
+                    "submission",
+                    reqwest::multipart::Part::bytes(png.to_vec())
+                        .file_name("student.png")
+                        .mime_str("image/png")
+                        .unwrap(),
+                );
+            let res = app
+                .client
+                .post(app.at(&format!("/v1/grade{query}")))
+                .multipart(form)
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(res.status(), 200, "{name} {query}");
+            check(&doc, "post", "/v1/grade", &Answer::from_reqwest(res).await);
+        }
+        let grading =
+            serde_json::to_vec(&json!({ "scene": small_scene, "submission": hits })).unwrap();
+        let res = app.post_json("/v1/grade", grading, &[]).await;
+        assert_eq!(res.status(), 200, "{name} hits");
+        check(&doc, "post", "/v1/grade", &Answer::from_reqwest(res).await);
     }
     for path in ["/v1/scenes", "/healthz", "/readyz", "/metrics"] {
         check(
@@ -298,6 +366,17 @@ async fn every_error_answer_is_documented() {
         req.send()
     };
     let json = ("content-type", "application/json");
+    // The JSON form of a grading request with `png` as the submission.
+    let grading = |png: &[u8]| {
+        use base64::Engine as _;
+        serde_json::to_vec(&json!({
+            "scene": shipped("lecture.json"),
+            "submission": {
+                "png_base64": base64::engine::general_purpose::STANDARD.encode(png),
+            },
+        }))
+        .unwrap()
+    };
     let cases: Vec<(&str, &str, reqwest::Response)> = vec![
         (
             "post",
@@ -348,6 +427,73 @@ async fn every_error_answer_is_documented() {
                 .unwrap(),
         ),
         ("get", "/v1/scenes/{name}", app.get("/v1/scenes/none").await),
+        (
+            "post",
+            "/v1/trace",
+            post("/v1/trace?v=1", lecture.clone(), &[json])
+                .await
+                .unwrap(),
+        ),
+        (
+            "post",
+            "/v1/trace",
+            post(
+                "/v1/trace?u=1&v=1",
+                lecture.clone(),
+                &[json, ("accept", "image/png")],
+            )
+            .await
+            .unwrap(),
+        ),
+        (
+            "post",
+            "/v1/trace",
+            post("/v1/trace?u=5&v=0", lecture.clone(), &[json])
+                .await
+                .unwrap(),
+        ),
+        (
+            "post",
+            "/v1/trace",
+            post("/v1/trace?u=0&v=0", br#"{"version": 1}"#.to_vec(), &[json])
+                .await
+                .unwrap(),
+        ),
+        (
+            "post",
+            "/v1/grade",
+            post(
+                "/v1/grade",
+                b"x".to_vec(),
+                &[("content-type", "text/plain")],
+            )
+            .await
+            .unwrap(),
+        ),
+        (
+            "post",
+            "/v1/grade",
+            post("/v1/grade", b"{".to_vec(), &[json]).await.unwrap(),
+        ),
+        (
+            "post",
+            "/v1/grade",
+            post("/v1/grade?worst=-1", lecture.clone(), &[json])
+                .await
+                .unwrap(),
+        ),
+        (
+            "post",
+            "/v1/grade",
+            post("/v1/grade", grading(b"not a png"), &[json])
+                .await
+                .unwrap(),
+        ),
+        (
+            "post",
+            "/v1/grade",
+            post("/v1/grade", vec![b' '; 5000], &[json]).await.unwrap(),
+        ),
         // 405 is documented with the operations the path has.
         ("post", "/v1/render", app.get("/v1/render").await),
     ];
@@ -357,7 +503,12 @@ async fn every_error_answer_is_documented() {
         statuses.push(answer.status);
         check(&doc, method, path, &answer);
     }
-    assert_eq!(statuses, [400, 400, 406, 413, 415, 422, 404, 405]);
+    assert_eq!(
+        statuses,
+        [
+            400, 400, 406, 413, 415, 422, 404, 400, 406, 422, 422, 415, 400, 400, 422, 413, 405
+        ]
+    );
 
     // 503 and 504, straight through the router (no network needed).
     let state = raytile::server::AppState::new(ServeArgs {
@@ -379,21 +530,56 @@ async fn every_error_answer_is_documented() {
     let answer = Answer::from_axum(answer).await;
     assert_eq!(answer.status, 504);
     check(&doc, "post", "/v1/render", &answer);
+    // The same for a grading request whose form never finishes arriving.
+    let stalled = Request::post("/v1/grade")
+        .header("content-type", "multipart/form-data; boundary=x")
+        .body(Body::from_stream(futures::stream::pending::<
+            Result<Vec<u8>, std::io::Error>,
+        >()))
+        .unwrap();
+    let answer = tokio::time::timeout(Duration::from_secs(60), router.clone().oneshot(stalled))
+        .await
+        .expect("the deadline answers")
+        .unwrap();
+    let answer = Answer::from_axum(answer).await;
+    assert_eq!(answer.status, 504);
+    check(&doc, "post", "/v1/grade", &answer);
 
     state.shutdown.advance(Phase::Draining);
-    for (method, path) in [
-        ("post", "/v1/render"),
-        ("post", "/v1/hits"),
-        ("get", "/readyz"),
+    for (method, path, body) in [
+        ("post", "/v1/render", lecture.clone()),
+        ("post", "/v1/hits", lecture.clone()),
+        ("post", "/v1/trace?u=0&v=0", lecture.clone()),
+        ("post", "/v1/grade", grading(&render_lecture())),
+        ("get", "/readyz", Vec::new()),
     ] {
         let req = Request::builder()
             .method(method.to_uppercase().as_str())
             .uri(path)
             .header("content-type", "application/json")
-            .body(Body::from(lecture.clone()))
+            .body(Body::from(body))
             .unwrap();
         let answer = Answer::from_axum(router.clone().oneshot(req).await.unwrap()).await;
         assert_eq!(answer.status, 503, "{path}");
-        check(&doc, method, path, &answer);
+        check(&doc, method, path.split('?').next().unwrap(), &answer);
     }
+}
+
+/// The lecture's image, as `raytile render` writes it.
+fn render_lecture() -> Vec<u8> {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("lecture.png");
+    let scene = crate::support::scene("lecture.json");
+    let run = crate::support::run(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    std::fs::read(out).unwrap()
 }
