@@ -73,6 +73,18 @@ struct BuildPrim {
     index: u32,
 }
 
+/// Splits `prims` at the median centroid along `axis`, ties broken by index so the tree
+/// does not depend on the sort's order.
+fn median_split(prims: &mut [BuildPrim], axis: usize) -> (usize, usize) {
+    let mid = prims.len() / 2;
+    prims.select_nth_unstable_by(mid, |a, b| {
+        a.centroid[axis]
+            .total_cmp(&b.centroid[axis])
+            .then(a.index.cmp(&b.index))
+    });
+    (axis, mid)
+}
+
 impl Bvh {
     /// Builds over `bounds[i]` for every `i`; empty boxes are left out.
     pub fn build(bounds: &[Aabb]) -> Bvh {
@@ -208,13 +220,7 @@ impl Bvh {
                 return None;
             }
             // All centroids coincide, or the tree is deep: split at the median index.
-            let mid = n / 2;
-            prims.select_nth_unstable_by(mid, |a, b| {
-                a.centroid[axis]
-                    .total_cmp(&b.centroid[axis])
-                    .then(a.index.cmp(&b.index))
-            });
-            return Some((axis, mid));
+            return Some(median_split(prims, axis));
         }
         let bin_of = |c: f64| {
             (((c - cb.min[axis]) / extent[axis] * SAH_BINS as f64) as usize).min(SAH_BINS - 1)
@@ -256,13 +262,7 @@ impl Bvh {
             if n <= MAX_LEAF_PRIMS {
                 return None;
             }
-            let mid = n / 2;
-            prims.select_nth_unstable_by(mid, |a, b| {
-                a.centroid[axis]
-                    .total_cmp(&b.centroid[axis])
-                    .then(a.index.cmp(&b.index))
-            });
-            return Some((axis, mid));
+            return Some(median_split(prims, axis));
         }
         let mut mid = 0;
         for i in 0..n {

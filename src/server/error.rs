@@ -110,18 +110,32 @@ pub enum ApiError {
 
 impl From<SceneError> for ApiError {
     fn from(e: SceneError) -> Self {
+        ApiError::scene(e, "the body", "")
+    }
+}
+
+impl ApiError {
+    /// A scene error of `what` (the part of the request that held the scene), with every
+    /// pointer put under `prefix` so that it points into the body that was sent.
+    pub fn scene(e: SceneError, what: &'static str, prefix: &str) -> ApiError {
         match e {
             SceneError::Syntax {
                 message,
                 line,
                 column,
             } => ApiError::InvalidJson {
-                what: "the body",
+                what,
                 message,
                 line,
                 column,
             },
-            SceneError::Invalid(problems) => ApiError::InvalidScene(problems),
+            SceneError::Invalid(problems) if prefix.is_empty() => ApiError::InvalidScene(problems),
+            SceneError::Invalid(problems) => ApiError::InvalidScene(
+                problems
+                    .into_iter()
+                    .map(|p| Problem::new(format!("{prefix}{}", p.pointer), p.message))
+                    .collect(),
+            ),
         }
     }
 }

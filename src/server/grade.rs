@@ -59,7 +59,7 @@ use super::job;
 use super::trace::TEXT_PLAIN_UTF8;
 use crate::grade::{self, GradeError, GradeOptions, Hint, Report, Submission, Tolerances, report};
 use crate::render::Renderer;
-use crate::scene::{self, Problem, Scene, SceneError};
+use crate::scene::{self, Scene};
 
 /// The routes: `POST /v1/grade`.
 pub fn router() -> Router<AppState> {
@@ -433,11 +433,13 @@ fn prepare(
         .map_err(|e| ApiError::BadRequest(e.to_string()))?;
     let (scene, submission, hint) = match sent {
         Sent::Form(scene, submission, hint) => {
-            let scene = scene::parse(&scene, limits).map_err(|e| scene_error(e, ""))?;
+            let scene = scene::parse(&scene, limits)
+                .map_err(|e| ApiError::scene(e, "the `scene` part", ""))?;
             (scene, submission, hint)
         }
         Sent::Json(scene, submission) => {
-            let scene = scene::parse_value(scene, limits).map_err(|e| scene_error(e, "/scene"))?;
+            let scene = scene::parse_value(scene, limits)
+                .map_err(|e| ApiError::scene(e, "the `scene` part", "/scene"))?;
             let (submission, hint) =
                 submission_member(submission).map_err(ApiError::InvalidSubmission)?;
             (scene, Bytes::from(submission), hint)
@@ -451,29 +453,6 @@ fn prepare(
         submission,
         tolerances,
     })
-}
-
-/// A scene error, its pointers under `prefix` (`/scene` in the JSON form, so that they
-/// point into the body that was sent).
-fn scene_error(e: SceneError, prefix: &str) -> ApiError {
-    match e {
-        SceneError::Syntax {
-            message,
-            line,
-            column,
-        } => ApiError::InvalidJson {
-            what: "the `scene` part",
-            message,
-            line,
-            column,
-        },
-        SceneError::Invalid(problems) => ApiError::InvalidScene(
-            problems
-                .into_iter()
-                .map(|p| Problem::new(format!("{prefix}{}", p.pointer), p.message))
-                .collect(),
-        ),
-    }
 }
 
 /// A JSON error of `what`: bad syntax is 400 `invalid-json` with where; a document of
