@@ -312,9 +312,10 @@ pub fn deadline_of(req: &Request, app: &AppState) -> tokio::time::Instant {
     tokio::time::Instant::from_std(start + app.config.deadline())
 }
 
-/// Reads the whole body behind `--max-body-bytes` and the request's deadline: 413 at
-/// once when `Content-Length` declares more than the limit (before a byte is read), or
-/// as soon as more arrives; 504 when the deadline passes while it arrives.
+/// Reads the whole body behind `--max-body-bytes` and the request's deadline: 413 when
+/// `Content-Length` declares more than the limit (the body is then read and dropped, see
+/// [`DISCARD_BYTES`]), or as soon as more arrives; 504 when the deadline passes while it
+/// arrives.
 pub async fn read_limited(req: Request, app: &AppState) -> Result<(Parts, Bytes), ApiError> {
     let deadline = deadline_of(&req, app);
     let limit = app.config.max_body_bytes;
@@ -323,13 +324,42 @@ pub async fn read_limited(req: Request, app: &AppState) -> Result<(Parts, Bytes)
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.trim().parse::<u64>().ok());
-    if declared.is_some_and(|n| n > limit as u64) {
-        // Refuse before reading a byte of it.
+    let (parts, body) = req.into_parts();
+    if let Some(n) = declared.filter(|&n| n > limit as u64) {
+        // Refuse without keeping a byte of it.
+        if n <= DISCARD_BYTES {
+            discard(body, deadline).await;
+        }
         return Err(ApiError::BodyTooLarge { limit_bytes: limit });
     }
-    let (parts, body) = req.into_parts();
     let bytes = read_body(body, limit, deadline, app).await?;
     Ok((parts, bytes))
+}
+
+/// How much of a body declared too large is still read, and dropped, before the 413.
+/// Most HTTP clients write the whole body before they read the answer; closing on unread
+/// bytes resets the connection, and they would report a broken pipe instead of the 413.
+/// A larger body is cut off unread.
+const DISCARD_BYTES: u64 = 64 << 20;
+
+/// How long reading a refused body may take at most.
+const DISCARD_TIME: Duration = Duration::from_secs(2);
+
+/// Reads `body` to its end, keeping nothing, for at most [`DISCARD_TIME`] (and not past
+/// the deadline).
+async fn discard(mut body: Body, deadline: tokio::time::Instant) {
+    use http_body_util::BodyExt;
+    let until = deadline.min(tokio::time::Instant::now() + DISCARD_TIME);
+    let drain = async {
+        let mut read = 0u64;
+        while let Some(Ok(frame)) = body.frame().await {
+            read += frame.data_ref().map_or(0, |d| d.len() as u64);
+            if read > DISCARD_BYTES {
+                break;
+            }
+        }
+    };
+    let _ = tokio::time::timeout_at(until, drain).await;
 }
 
 /// Counts and builds the 504 of a request whose deadline passed before its answer began.

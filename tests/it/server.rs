@@ -541,7 +541,7 @@ async fn the_server_limits_are_422_and_413() {
     .await;
     assert_eq!(doc["problems"][0]["pointer"], "/image/samples");
 
-    // Declared too large: refused before it is read.
+    // Declared too large: refused without being kept.
     let padded = format!("{{\"version\": 1{}}}", " ".repeat(5000));
     let doc = problem(
         app.post_json("/v1/render", padded.clone(), &[]).await,
@@ -558,6 +558,54 @@ async fn the_server_limits_are_422_and_413() {
         chunk.as_bytes(),
     );
     let text = String::from_utf8_lossy(&raw);
+    assert!(text.starts_with("HTTP/1.1 413"), "{text}");
+    assert!(text.contains("problems/body-too-large"), "{text}");
+}
+
+/// Most HTTP clients send the whole body before they read the answer. Closing on unread
+/// bytes would reset the connection and lose the 413; the server reads and drops a body
+/// declared too large instead, so the answer arrives even when the body comes slowly.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_body_declared_too_large_is_read_and_dropped_before_the_413() {
+    let app = TestApp::with(ServeArgs {
+        max_body_bytes: 4096,
+        ..config()
+    })
+    .await;
+    let addr = app.addr;
+    let (sent_all, text) = tokio::task::spawn_blocking(move || {
+        let body = vec![b' '; 256 * 1024];
+        let mut s = TcpStream::connect(addr).expect("connects");
+        s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+        let head = format!(
+            "POST /v1/render HTTP/1.1\r\nHost: t\r\nContent-Type: application/json\r\n\
+             Content-Length: {}\r\nConnection: close\r\n\r\n",
+            body.len()
+        );
+        s.write_all(head.as_bytes()).unwrap();
+        // Slowly enough that the server has decided long before the last piece; a
+        // server that closed on the unread rest makes these writes fail.
+        let mut sent = 0;
+        for piece in body.chunks(16 * 1024) {
+            std::thread::sleep(Duration::from_millis(10));
+            if s.write_all(piece).is_err() {
+                break;
+            }
+            sent += piece.len();
+        }
+        let mut out = Vec::new();
+        let _ = s.read_to_end(&mut out);
+        (
+            sent == body.len(),
+            String::from_utf8_lossy(&out).into_owned(),
+        )
+    })
+    .await
+    .unwrap();
+    assert!(
+        sent_all,
+        "the connection was reset while the body was being sent"
+    );
     assert!(text.starts_with("HTTP/1.1 413"), "{text}");
     assert!(text.contains("problems/body-too-large"), "{text}");
 }
