@@ -131,6 +131,27 @@ pub fn parse_flag(name: &str, value: &str) -> Result<bool, ApiError> {
     }
 }
 
+/// Parses a query parameter that is one of a few words, each standing for a value; the
+/// error lists the words.
+pub fn parse_choice<T: Copy>(
+    name: &str,
+    value: &str,
+    choices: &[(&str, T)],
+) -> Result<T, ApiError> {
+    if let Some(&(_, t)) = choices.iter().find(|(word, _)| *word == value) {
+        return Ok(t);
+    }
+    let words: Vec<String> = choices.iter().map(|(w, _)| format!("`{w}`")).collect();
+    let listed = match words.split_last() {
+        Some((last, [])) => last.clone(),
+        Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
+        None => String::new(),
+    };
+    Err(ApiError::BadRequest(format!(
+        "query parameter `{name}` must be {listed}, not `{value}`"
+    )))
+}
+
 impl RegionQuery {
     /// The region within `scene`'s frame (the whole frame by default).
     pub fn within(&self, scene: &Scene) -> Result<Rect, ApiError> {
@@ -396,6 +417,28 @@ async fn read_body(
 mod tests {
     use super::*;
     use axum::http::HeaderValue;
+
+    #[test]
+    fn a_choice_maps_its_words_and_lists_them_when_none_fits() {
+        let formats = [("json", false), ("text", true)];
+        assert!(matches!(parse_choice("format", "text", &formats), Ok(true)));
+        let three = [("auto", 0), ("all", 1), ("bvh", 2)];
+        assert!(matches!(parse_choice("candidates", "all", &three), Ok(1)));
+        fn message<T: std::fmt::Debug>(r: Result<T, ApiError>) -> String {
+            match r {
+                Err(ApiError::BadRequest(m)) => m,
+                other => panic!("expected a bad request, got {other:?}"),
+            }
+        }
+        assert_eq!(
+            message(parse_choice("format", "xml", &formats)),
+            "query parameter `format` must be `json` or `text`, not `xml`"
+        );
+        assert_eq!(
+            message(parse_choice("candidates", "JSON", &three)),
+            "query parameter `candidates` must be `auto`, `all` or `bvh`, not `JSON`"
+        );
+    }
 
     const HITS: &[&str] = &[
         "application/json",

@@ -53,7 +53,7 @@ use super::AppState;
 use super::error::ApiError;
 use super::extract::{
     RequestInfo, content_type, deadline_exceeded, is_json, media_essence, negotiate, once,
-    parse_flag, parse_param, query_pairs, read_limited,
+    parse_choice, parse_flag, parse_param, query_pairs, read_limited,
 };
 use super::job;
 use super::trace::TEXT_PLAIN_UTF8;
@@ -180,30 +180,20 @@ impl<S: Send + Sync> FromRequestParts<S> for GradeQuery {
                     once(&mut q.max_score, k, x)?;
                 }
                 "report" => {
-                    let a = match v.as_str() {
-                        "json" => Answer::Json,
-                        "text" => Answer::Text,
-                        "gradescope" => Answer::Gradescope,
-                        "prairielearn" => Answer::PrairieLearn,
-                        _ => {
-                            return Err(ApiError::BadRequest(format!(
-                                "query parameter `report` must be `json`, `text`, `gradescope` \
-                                 or `prairielearn`, not `{v}`"
-                            )));
-                        }
-                    };
+                    let a = parse_choice(
+                        k,
+                        &v,
+                        &[
+                            ("json", Answer::Json),
+                            ("text", Answer::Text),
+                            ("gradescope", Answer::Gradescope),
+                            ("prairielearn", Answer::PrairieLearn),
+                        ],
+                    )?;
                     once(&mut q.report, k, a)?;
                 }
                 "output" => {
-                    let diff = match v.as_str() {
-                        "diff" => true,
-                        "report" => false,
-                        _ => {
-                            return Err(ApiError::BadRequest(format!(
-                                "query parameter `output` must be `diff` or `report`, not `{v}`"
-                            )));
-                        }
-                    };
+                    let diff = parse_choice(k, &v, &[("diff", true), ("report", false)])?;
                     once(&mut q.diff, k, diff)?;
                 }
                 "format" => {

@@ -26,7 +26,9 @@ use axum::routing::post;
 
 use super::AppState;
 use super::error::ApiError;
-use super::extract::{RequestInfo, SceneBody, negotiate, once, parse_param, query_pairs};
+use super::extract::{
+    RequestInfo, SceneBody, negotiate, once, parse_choice, parse_param, query_pairs,
+};
 use super::job;
 use crate::grade::explain::{self, Candidates, ExplainError, ExplainOptions};
 use crate::render::Renderer;
@@ -78,28 +80,19 @@ impl<S: Send + Sync> FromRequestParts<S> for TraceQuery {
                 "u" => once(&mut u, "u", parse_param::<u32>("u", &value, whole)?)?,
                 "v" => once(&mut v, "v", parse_param::<u32>("v", &value, whole)?)?,
                 "format" => {
-                    let t = match value.as_str() {
-                        "json" => false,
-                        "text" => true,
-                        _ => {
-                            return Err(ApiError::BadRequest(format!(
-                                "query parameter `format` must be `json` or `text`, not `{value}`"
-                            )));
-                        }
-                    };
+                    let t = parse_choice("format", &value, &[("json", false), ("text", true)])?;
                     once(&mut text, "format", t)?;
                 }
                 "candidates" => {
-                    let c = match value.as_str() {
-                        "auto" => Candidates::Auto,
-                        "all" => Candidates::All,
-                        "bvh" => Candidates::Bvh,
-                        _ => {
-                            return Err(ApiError::BadRequest(format!(
-                                "query parameter `candidates` must be `auto`, `all` or `bvh`, not `{value}`"
-                            )));
-                        }
-                    };
+                    let c = parse_choice(
+                        "candidates",
+                        &value,
+                        &[
+                            ("auto", Candidates::Auto),
+                            ("all", Candidates::All),
+                            ("bvh", Candidates::Bvh),
+                        ],
+                    )?;
                     once(&mut candidates, "candidates", c)?;
                 }
                 "max_triangles" => once(
