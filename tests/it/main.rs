@@ -3,7 +3,8 @@
 //! - `support_server`: a `TestApp` (the real router on a loopback port), scene makers;
 //! - `cli`: `raytile render | hits | validate` as a user runs them;
 //! - `cluster`: two `raytile serve` processes behind nginx, and `render --servers`
-//!   finishing a frame while a replica dies (needs nginx installed);
+//!   finishing a frame while a replica dies (the nginx test is ignored unless asked for:
+//!   `bash .ci/test-all` installs nginx and runs it);
 //! - `grade`: `raytile trace | grade` as an instructor runs them;
 //! - `geometry`: shapes under transforms against hand-computed answers;
 //! - `lecture`: the lecture's worked example;
