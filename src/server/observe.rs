@@ -8,8 +8,9 @@
 //!   completed known. Fields: `request_id`, `method`, `route`, `path`, `status`,
 //!   `bytes`, `duration_ms`, `complete`.
 //! - **`raytile_http_requests_total{route, method, status}`**, counted when the head
-//!   leaves. `route` is the route's template (`/v1/scenes/{name}`), or `unmatched`, so
-//!   that a scan of random paths cannot blow up the label set.
+//!   leaves. `route` is the route's template (`/v1/scenes/{name}`), or `unmatched`, and
+//!   `method` one of the methods HTTP defines, or `other`, so that a scan of random paths
+//!   or invented methods cannot blow up the label set.
 
 use std::hash::BuildHasher;
 use std::pin::Pin;
@@ -53,7 +54,7 @@ pub async fn observe(State(app): State<AppState>, mut req: Request, next: Next) 
     let status = res.status();
     app.metrics
         .requests
-        .with_label_values(&[route.as_str(), method.as_str(), status.as_str()])
+        .with_label_values(&[route.as_str(), method_label(&method), status.as_str()])
         .inc();
     if let Ok(v) = HeaderValue::from_str(&id) {
         res.headers_mut().insert(X_REQUEST_ID, v);
@@ -73,6 +74,25 @@ pub async fn observe(State(app): State<AppState>, mut req: Request, next: Next) 
             ended: false,
         })
     })
+}
+
+/// The `method` label: one of the methods HTTP defines, `other` for any other, since a
+/// client may send any token as a method and each label value is a series kept for ever.
+fn method_label(method: &Method) -> &'static str {
+    [
+        Method::GET,
+        Method::HEAD,
+        Method::POST,
+        Method::PUT,
+        Method::DELETE,
+        Method::CONNECT,
+        Method::OPTIONS,
+        Method::TRACE,
+        Method::PATCH,
+    ]
+    .iter()
+    .find(|m| *m == method)
+    .map_or("other", |m| m.as_str())
 }
 
 /// The client's id, if it is 1 to 128 visible ASCII characters.
@@ -217,5 +237,15 @@ mod tests {
         let (a, b) = (new_id(), new_id());
         assert_eq!(a.len(), 32);
         assert_ne!(a, b);
+    }
+
+    #[test]
+    fn method_labels_are_the_known_methods_or_other() {
+        assert_eq!(method_label(&Method::GET), "GET");
+        assert_eq!(method_label(&Method::PATCH), "PATCH");
+        for invented in ["BREW", "get", "X-1", "PROPFIND"] {
+            let m = Method::from_bytes(invented.as_bytes()).expect("a method token");
+            assert_eq!(method_label(&m), "other", "{invented}");
+        }
     }
 }

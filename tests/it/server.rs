@@ -356,6 +356,36 @@ async fn health_readiness_and_metrics() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn invented_methods_share_one_metric_series() {
+    let app = TestApp::spawn().await;
+    for i in 0..50 {
+        let method = reqwest::Method::from_bytes(format!("BREW{i}").as_bytes()).unwrap();
+        let res = app
+            .client
+            .request(method, app.at("/healthz"))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(res.status(), 405);
+    }
+    let text = app.get("/metrics").await.text().await.unwrap();
+    let series: Vec<&str> = text
+        .lines()
+        .filter(|l| l.starts_with("raytile_http_requests_total{"))
+        .collect();
+    assert!(
+        series.iter().all(|l| !l.contains("BREW")),
+        "an invented method became a label value: {series:?}"
+    );
+    assert!(
+        text.contains(
+            "raytile_http_requests_total{method=\"other\",route=\"/healthz\",status=\"405\"} 50"
+        ),
+        "{series:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_request_id_is_returned_and_an_incoming_one_kept() {
     let app = TestApp::spawn().await;
     let res = app
