@@ -23,6 +23,14 @@ pub const DEFAULT_DEADLINE_SECONDS: f64 = 300.0;
 pub const DEFAULT_GRACE_SECONDS: f64 = 25.0;
 /// How long a response may wait for a client that takes nothing.
 pub const DEFAULT_STALL_SECONDS: f64 = 15.0;
+/// Connections open at once: well under the usual limit of 1024 file descriptors.
+pub const DEFAULT_MAX_CONNECTIONS: u32 = 512;
+/// How long a request's head may take to arrive, from its first byte.
+pub const DEFAULT_HEADER_TIMEOUT_SECONDS: f64 = 10.0;
+/// How long a kept-alive connection may wait for its next request: longer than nginx's
+/// upstream keep-alive (60 s), so that the proxy closes first and never reuses a
+/// connection we closed.
+pub const DEFAULT_IDLE_TIMEOUT_SECONDS: f64 = 75.0;
 
 /// `raytile serve`: the HTTP service (SPEC §6–7).
 #[derive(Debug, Clone, clap::Args)]
@@ -82,6 +90,21 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYTILE_STALL_SECONDS", default_value_t = DEFAULT_STALL_SECONDS, value_parser = parse_seconds)]
     pub stall_seconds: f64,
 
+    /// Connections open at once; past it a new connection gets 503 with `Retry-After`
+    /// and is closed. Keep it below the process's file-descriptor limit (`ulimit -n`).
+    #[arg(long, env = "RAYTILE_MAX_CONNECTIONS", default_value_t = DEFAULT_MAX_CONNECTIONS, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+    pub max_connections: u32,
+
+    /// Seconds a request's head (request line and headers) may take from its first
+    /// byte, and a new connection may take to send one; slower clients are cut.
+    #[arg(long, env = "RAYTILE_HEADER_TIMEOUT_SECONDS", default_value_t = DEFAULT_HEADER_TIMEOUT_SECONDS, value_parser = parse_seconds)]
+    pub header_timeout_seconds: f64,
+
+    /// Seconds a kept-alive connection with no request in flight stays open. Keep it
+    /// longer than the proxy's upstream keep-alive (nginx: 60 s).
+    #[arg(long, env = "RAYTILE_IDLE_TIMEOUT_SECONDS", default_value_t = DEFAULT_IDLE_TIMEOUT_SECONDS, value_parser = parse_seconds)]
+    pub idle_timeout_seconds: f64,
+
     /// Tile edge in pixels.
     #[arg(long, env = "RAYTILE_TILE", default_value_t = DEFAULT_TILE_PX, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub tile: u32,
@@ -111,6 +134,9 @@ impl Default for ServeArgs {
             threads: None,
             grace_seconds: DEFAULT_GRACE_SECONDS,
             stall_seconds: DEFAULT_STALL_SECONDS,
+            max_connections: DEFAULT_MAX_CONNECTIONS,
+            header_timeout_seconds: DEFAULT_HEADER_TIMEOUT_SECONDS,
+            idle_timeout_seconds: DEFAULT_IDLE_TIMEOUT_SECONDS,
             tile: DEFAULT_TILE_PX,
             log_format: "text".into(),
         }
@@ -159,10 +185,31 @@ impl ServeArgs {
         Duration::from_secs_f64(self.stall_seconds)
     }
 
+    /// What each connection may hold: the cap and the two timeouts.
+    pub fn connection_limits(&self) -> ConnectionLimits {
+        ConnectionLimits {
+            max_connections: self.max_connections as usize,
+            header_timeout: Duration::from_secs_f64(self.header_timeout_seconds),
+            idle_timeout: Duration::from_secs_f64(self.idle_timeout_seconds),
+        }
+    }
+
     /// The shutdown grace period.
     pub fn grace(&self) -> Duration {
         Duration::from_secs_f64(self.grace_seconds)
     }
+}
+
+/// What each connection may hold (see `server::connection`).
+#[derive(Debug, Clone, Copy)]
+pub struct ConnectionLimits {
+    /// Connections open at once.
+    pub max_connections: usize,
+    /// From a request's first byte to the end of its head; and from accept to the
+    /// first byte.
+    pub header_timeout: Duration,
+    /// A kept-alive connection with nothing in flight.
+    pub idle_timeout: Duration,
 }
 
 /// The cores this process may use.

@@ -97,6 +97,13 @@ pub enum ApiError {
     /// Every render slot is busy and the queue is full (503 + `Retry-After`).
     #[error("every render slot is busy and the queue is full")]
     Saturated,
+    /// The server has as many connections open as it allows (503 + `Retry-After`),
+    /// answered by the accept loop before the connection is read.
+    #[error("the server has {limit} connections open, as many as it allows")]
+    TooManyConnections {
+        /// `--max-connections`.
+        limit: usize,
+    },
     /// The server is shutting down and takes no new work (503 + `Retry-After`).
     #[error("the server is shutting down")]
     ShuttingDown,
@@ -200,7 +207,9 @@ impl ApiError {
             | ApiError::PixelOutside(_)
             | ApiError::InvalidSubmission(_)
             | ApiError::ReferenceFailed(_) => StatusCode::UNPROCESSABLE_ENTITY,
-            ApiError::Saturated | ApiError::ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
+            ApiError::Saturated | ApiError::TooManyConnections { .. } | ApiError::ShuttingDown => {
+                StatusCode::SERVICE_UNAVAILABLE
+            }
             ApiError::DeadlineExceeded(_) => StatusCode::GATEWAY_TIMEOUT,
             ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
         }
@@ -223,6 +232,7 @@ impl ApiError {
             ApiError::InvalidSubmission(_) => ("invalid-submission", "Invalid submission"),
             ApiError::ReferenceFailed(_) => ("reference-failed", "Reference not computed"),
             ApiError::Saturated => ("saturated", "Server saturated"),
+            ApiError::TooManyConnections { .. } => ("too-many-connections", "Too many connections"),
             ApiError::ShuttingDown => ("shutting-down", "Server shutting down"),
             ApiError::DeadlineExceeded(_) => ("deadline-exceeded", "Deadline exceeded"),
             ApiError::Internal(_) => ("internal", "Internal server error"),
@@ -257,6 +267,9 @@ impl ApiError {
             ApiError::InvalidSubmission(e) => json!({ "reason": submission_reason(e) }),
             ApiError::Saturated | ApiError::ShuttingDown => {
                 json!({ "retry_after_seconds": RETRY_AFTER_SECONDS })
+            }
+            ApiError::TooManyConnections { limit } => {
+                json!({ "retry_after_seconds": RETRY_AFTER_SECONDS, "limit": limit })
             }
             ApiError::DeadlineExceeded(d) => json!({ "deadline_seconds": d.as_secs_f64() }),
             _ => json!({}),
@@ -294,8 +307,11 @@ pub struct ProblemDoc {
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let status = self.status();
-        if status.is_server_error() && !matches!(self, ApiError::Saturated | ApiError::ShuttingDown)
-        {
+        let refused = matches!(
+            self,
+            ApiError::Saturated | ApiError::TooManyConnections { .. } | ApiError::ShuttingDown
+        );
+        if status.is_server_error() && !refused {
             tracing::error!(error = %self, status = status.as_u16(), "request failed");
         }
         if let ApiError::ReferenceFailed(why) = &self {
@@ -307,7 +323,7 @@ impl IntoResponse for ApiError {
         let mut res = (status, body).into_response();
         let h = res.headers_mut();
         h.insert(header::CONTENT_TYPE, HeaderValue::from_static(PROBLEM_JSON));
-        if matches!(self, ApiError::Saturated | ApiError::ShuttingDown) {
+        if refused {
             h.insert(header::RETRY_AFTER, HeaderValue::from(RETRY_AFTER_SECONDS));
         }
         if matches!(

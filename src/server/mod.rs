@@ -7,7 +7,8 @@
 //! - one file per group of routes: [`render`] (`/v1/render`, `/v1/hits`), [`trace`]
 //!   (`/v1/trace`), [`grade`] (`/v1/grade`), [`validate`], [`scenes`], [`health`],
 //!   [`metrics`];
-//! - the machinery they share: [`extract`] (body, query, `Accept`), [`admission`]
+//! - the machinery they share: [`connection`] (the accept loop: connection cap, header
+//!   and idle timeouts), [`extract`] (body, query, `Accept`), [`admission`]
 //!   (render slots and the queue), [`stream`] (rayon thread → response body), [`job`]
 //!   (CPU work that answers in one piece, admitted like a render),
 //!   [`error`] (every failure → `application/problem+json`, in one place),
@@ -15,6 +16,7 @@
 //!   a graceful stop).
 
 pub mod admission;
+pub mod connection;
 pub mod error;
 pub mod extract;
 pub mod grade;
@@ -29,14 +31,13 @@ pub mod stream;
 pub mod trace;
 pub mod validate;
 
-use std::future::{Future, IntoFuture};
+use std::future::Future;
 use std::ops::Deref;
 use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::Context;
 use axum::Router;
-use axum::serve::ListenerExt;
 use tokio::net::TcpListener;
 use tower_http::catch_panic::CatchPanicLayer;
 
@@ -159,36 +160,28 @@ pub async fn run(
             shutdown.advance(Phase::Draining);
         }
     };
-    // Streamed bodies go out as many small writes (the head, the PNG header, each band):
-    // without TCP_NODELAY, Nagle's algorithm holds each one back until the client's
-    // delayed ACK, about 40 ms per response.
-    let listener = listener.tap_io(|tcp| {
-        if let Err(e) = tcp.set_nodelay(true) {
-            tracing::debug!(error = %e, "cannot set TCP_NODELAY");
-        }
-    });
-    let server = axum::serve(listener, app(state)).with_graceful_shutdown(draining);
-    let mut server = std::pin::pin!(server.into_future());
+    let limits = state.config.connection_limits();
+    let server = connection::serve_connections(listener, app(state), limits, draining);
+    let mut server = std::pin::pin!(server);
     // Either the server ends by itself (with no connections open it ends as soon as the
     // drain begins), or the drain begins first and gets the grace period.
     let ended = tokio::select! {
-        r = &mut server => Some(r),
+        () = &mut server => Some(()),
         _ = shutdown.reached(Phase::Draining) => None,
     };
-    let result = match ended {
-        Some(r) => r,
+    match ended {
+        Some(()) => {}
         None => match tokio::time::timeout(grace, &mut server).await {
-            Ok(r) => r,
+            Ok(()) => {}
             Err(_) => {
                 tracing::warn!("the grace period is over: cutting the responses still in flight");
                 shutdown.advance(Phase::Stopping);
                 if tokio::time::timeout(CUT_WAIT, &mut server).await.is_err() {
                     tracing::warn!("some connections are still open; exiting anyway");
                 }
-                Ok(())
             }
         },
-    };
+    }
     // Cut renders stop within a tile; let them release their slots (and log why they
     // stopped) before saying so, but not for ever.
     let wind_down = tokio::time::Instant::now() + CUT_WAIT;
@@ -196,7 +189,7 @@ pub async fn run(
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
     tracing::info!("stopped");
-    result.context("the server failed")
+    Ok(())
 }
 
 /// Resolves on SIGTERM or Ctrl-C (SIGINT).

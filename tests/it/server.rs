@@ -1099,3 +1099,151 @@ fn raw_request(addr: std::net::SocketAddr, head: &str, body: &[u8]) -> Vec<u8> {
     let _ = s.read_to_end(&mut out);
     out
 }
+
+// ---- connections -----------------------------------------------------------------
+
+/// Reads from `s` until the server closes it (or `limit` passes); what it sent and
+/// whether it closed.
+fn read_until_closed(s: &mut TcpStream, limit: Duration) -> (Vec<u8>, bool) {
+    let start = Instant::now();
+    let mut out = Vec::new();
+    let mut buf = [0u8; 4096];
+    while start.elapsed() < limit {
+        s.set_read_timeout(Some(Duration::from_millis(100)))
+            .unwrap();
+        match s.read(&mut buf) {
+            Ok(0) => return (out, true),
+            Ok(n) => out.extend_from_slice(&buf[..n]),
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) => {}
+            Err(_) => return (out, true),
+        }
+    }
+    (out, false)
+}
+
+/// Sends a `GET /healthz` on `s` and reads its whole answer (it has a Content-Length).
+fn healthz_on(s: &mut TcpStream) -> String {
+    s.write_all(b"GET /healthz HTTP/1.1\r\nhost: t\r\n\r\n")
+        .unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    let mut got = Vec::new();
+    let mut buf = [0u8; 4096];
+    loop {
+        let n = s.read(&mut buf).expect("an answer");
+        assert!(
+            n > 0,
+            "closed before answering: {}",
+            String::from_utf8_lossy(&got)
+        );
+        got.extend_from_slice(&buf[..n]);
+        let text = String::from_utf8_lossy(&got).into_owned();
+        if let Some((head, body)) = text.split_once("\r\n\r\n") {
+            let len: usize = head
+                .lines()
+                .find_map(|l| {
+                    l.to_ascii_lowercase()
+                        .strip_prefix("content-length: ")
+                        .map(|v| v.trim().parse().unwrap())
+                })
+                .expect("a content-length");
+            if body.len() >= len {
+                return text;
+            }
+        }
+    }
+}
+
+fn connection_config(header: f64, idle: f64, max: u32) -> ServeArgs {
+    ServeArgs {
+        header_timeout_seconds: header,
+        idle_timeout_seconds: idle,
+        max_connections: max,
+        ..config()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_drips_its_head_is_cut_after_the_header_timeout() {
+    let app = TestApp::with(connection_config(0.5, 30.0, 64)).await;
+    let addr = app.addr;
+    tokio::task::spawn_blocking(move || {
+        let mut s = TcpStream::connect(addr).unwrap();
+        let start = Instant::now();
+        s.write_all(b"GET /healthz HTTP/1.1\r\n").unwrap();
+        std::thread::sleep(Duration::from_millis(200));
+        s.write_all(b"host: t\r\n").unwrap();
+        let (got, closed) = read_until_closed(&mut s, Duration::from_secs(10));
+        assert!(closed, "the connection is still open after 10 s");
+        assert!(got.is_empty() || !String::from_utf8_lossy(&got).contains("200 OK"));
+        let took = start.elapsed();
+        assert!(took >= Duration::from_millis(450), "cut after {took:?}");
+        // A silent new connection is cut too.
+        let mut quiet = TcpStream::connect(addr).unwrap();
+        assert!(read_until_closed(&mut quiet, Duration::from_secs(10)).1);
+    })
+    .await
+    .unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_kept_alive_connection_waits_the_idle_timeout_then_closes() {
+    // The idle timeout, not the (shorter) header timeout, governs a connection between
+    // requests.
+    let app = TestApp::with(connection_config(0.3, 1.5, 64)).await;
+    let addr = app.addr;
+    tokio::task::spawn_blocking(move || {
+        let mut s = TcpStream::connect(addr).unwrap();
+        assert!(healthz_on(&mut s).starts_with("HTTP/1.1 200"));
+        std::thread::sleep(Duration::from_millis(800));
+        assert!(
+            healthz_on(&mut s).starts_with("HTTP/1.1 200"),
+            "closed before the idle timeout"
+        );
+        let idle_from = Instant::now();
+        let (_, closed) = read_until_closed(&mut s, Duration::from_secs(10));
+        assert!(closed, "still open 10 s after its last request");
+        assert!(
+            idle_from.elapsed() >= Duration::from_millis(1300),
+            "closed after {:?}",
+            idle_from.elapsed()
+        );
+    })
+    .await
+    .unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn past_the_connection_cap_a_client_gets_503_and_idle_sockets_do_not_lock_others_out() {
+    let app = TestApp::with(connection_config(1.0, 30.0, 4)).await;
+    let addr = app.addr;
+    tokio::task::spawn_blocking(move || {
+        let idle: Vec<TcpStream> = (0..4).map(|_| TcpStream::connect(addr).unwrap()).collect();
+        // The fifth is refused with a problem document, without being read.
+        let start = Instant::now();
+        let answer = loop {
+            let mut s = TcpStream::connect(addr).unwrap();
+            let (got, _) = read_until_closed(&mut s, Duration::from_secs(2));
+            let text = String::from_utf8_lossy(&got).into_owned();
+            if text.starts_with("HTTP/1.1 503") || start.elapsed() > Duration::from_secs(5) {
+                break text;
+            }
+        };
+        assert!(answer.starts_with("HTTP/1.1 503"), "{answer}");
+        assert!(answer.contains("retry-after: 1"), "{answer}");
+        assert!(
+            answer.contains("/problems/too-many-connections"),
+            "{answer}"
+        );
+        // The silent sockets are cut after the header timeout, and then others get in.
+        std::thread::sleep(Duration::from_millis(1500));
+        let mut s = TcpStream::connect(addr).unwrap();
+        assert!(healthz_on(&mut s).starts_with("HTTP/1.1 200"));
+        drop(idle);
+    })
+    .await
+    .unwrap();
+}
