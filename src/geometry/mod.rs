@@ -12,6 +12,6 @@ pub mod world;
 
 pub use hit::{Face, Hit, Probe, Surface};
 pub use ray::Ray;
-pub use shapes::{MeshData, Shape};
+pub use shapes::{CanonicalShape, Mesh, NeedsData, Shape, ShapeName};
 pub use transform::Transform;
 pub use world::World;

@@ -13,21 +13,9 @@ use super::{
     bvh::Bvh,
     hit::{Hit, Probe, Surface},
     ray::Ray,
-    shapes::{Shape, cone, cube, cylinder, disk, mesh::MeshAccel, plane, sphere},
+    shapes::Shape,
     transform::Transform,
 };
-
-/// A shape prepared to trace.
-#[derive(Debug, Clone)]
-enum Kind {
-    Sphere,
-    Cube,
-    Plane,
-    Disk,
-    Cylinder,
-    Cone,
-    Mesh(Box<MeshAccel>),
-}
 
 /// What every ray test of an object reads (kept small: it is the hot data).
 #[derive(Debug, Clone)]
@@ -36,7 +24,23 @@ struct Solid {
     object_from_world: DAffine3,
     /// The viewpoint in object space (see [`World::set_viewpoint`]).
     view_origin: DVec3,
-    kind: Kind,
+    /// Prepared (see [`Shape::prepare`]) before the first ray.
+    shape: Shape,
+}
+
+impl Solid {
+    /// `ray` in object space; `from_view` says it starts at the viewpoint.
+    #[inline(always)]
+    fn object_ray(&self, ray: &Ray, from_view: bool) -> Ray {
+        if from_view {
+            Ray {
+                origin: self.view_origin,
+                dir: self.object_from_world.transform_vector3(ray.dir),
+            }
+        } else {
+            ray.transformed(&self.object_from_world)
+        }
+    }
 }
 
 /// What only the closest hit's record reads.
@@ -68,42 +72,8 @@ impl World {
         let mut bounds = Vec::new();
         let mut unbounded = Vec::new();
         for (i, (shape, t)) in objects.into_iter().enumerate() {
-            let (kind, object_bounds) = match shape {
-                Shape::Sphere => (Kind::Sphere, Some(Aabb::CANONICAL)),
-                Shape::Cube => (Kind::Cube, Some(Aabb::CANONICAL)),
-                Shape::Plane => (Kind::Plane, None),
-                Shape::Disk => (
-                    Kind::Disk,
-                    Some(Aabb {
-                        min: DVec3::new(-1.0, 0.0, -1.0),
-                        max: DVec3::new(1.0, 0.0, 1.0),
-                    }),
-                ),
-                Shape::Cylinder => (Kind::Cylinder, Some(Aabb::CANONICAL)),
-                Shape::Cone => (Kind::Cone, Some(Aabb::CANONICAL)),
-                Shape::Mesh(m) => {
-                    let accel = MeshAccel::new(m);
-                    let b = accel.bounds();
-                    (Kind::Mesh(Box::new(accel)), Some(b))
-                }
-            };
-            let world_bounds = match (&kind, object_bounds) {
-                // A transformed sphere is an ellipsoid whose exact extent along axis i
-                // is the length of row i of the 3 × 3 part.
-                (Kind::Sphere, _) => {
-                    let m = t.forward.matrix3;
-                    let r = DVec3::new(m.row(0).length(), m.row(1).length(), m.row(2).length());
-                    Some(Aabb {
-                        min: t.forward.translation - r,
-                        max: t.forward.translation + r,
-                    })
-                }
-                (Kind::Mesh(_), Some(b)) => {
-                    Some(mesh_world_bounds(shape, t).unwrap_or(b.transformed(&t.forward)))
-                }
-                (_, b) => b.map(|b| b.transformed(&t.forward)),
-            };
-            match world_bounds {
+            shape.prepare();
+            match shape.world_bounds(t) {
                 Some(b) => bounds.push(b),
                 None => {
                     bounds.push(Aabb::EMPTY);
@@ -113,7 +83,7 @@ impl World {
             solids.push(Solid {
                 object_from_world: t.inverse,
                 view_origin: DVec3::ZERO,
-                kind,
+                shape: shape.clone(),
             });
             placements.push(Placement {
                 world_from_object: *t,
@@ -181,26 +151,11 @@ impl World {
         probe: &mut P,
     ) -> Option<(f64, u32)> {
         let s = &self.solids[i as usize];
-        let r = if from_view {
-            Ray {
-                origin: s.view_origin,
-                dir: s.object_from_world.transform_vector3(ray.dir),
-            }
-        } else {
-            ray.transformed(&s.object_from_world)
-        };
+        let r = s.object_ray(ray, from_view);
         if probe.active() {
             probe.object(i, &r);
         }
-        match &s.kind {
-            Kind::Sphere => sphere::intersect(&r, t_min, t_max, probe).map(|t| (t, 0)),
-            Kind::Cube => cube::intersect(&r, t_min, t_max, probe),
-            Kind::Plane => plane::intersect(&r, t_min, t_max, probe).map(|t| (t, 0)),
-            Kind::Disk => disk::intersect(&r, t_min, t_max, probe).map(|t| (t, 0)),
-            Kind::Cylinder => cylinder::intersect(&r, t_min, t_max, probe),
-            Kind::Cone => cone::intersect(&r, t_min, t_max, probe),
-            Kind::Mesh(m) => m.intersect(&r, t_min, t_max, probe),
-        }
+        s.shape.intersect(&r, t_min, t_max, probe)
     }
 
     /// The first hit in `(t_min, t_max)`; ties go to the object listed first.
@@ -250,14 +205,11 @@ impl World {
     /// Whether anything is hit in `(t_min, t_max)` (shadow rays).
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
+        let from_view = self.viewpoint == Some(ray.origin);
         let test = |i: u32| {
             let s = &self.solids[i as usize];
-            match &s.kind {
-                Kind::Mesh(m) => m.occludes(&ray.transformed(&s.object_from_world), t_min, t_max),
-                _ => self
-                    .intersect_object(i, ray, t_min, t_max, &mut ())
-                    .is_some(),
-            }
+            s.shape
+                .occludes(&s.object_ray(ray, from_view), t_min, t_max)
         };
         self.unbounded.iter().any(|&i| test(i))
             || self
@@ -298,14 +250,8 @@ impl World {
         let s = &self.solids[hit.object as usize];
         let r = ray.transformed(&s.object_from_world);
         let object_point = r.at(hit.lambda);
-        let (n_object, face) = match &s.kind {
-            Kind::Sphere => (sphere::normal(object_point), None),
-            Kind::Cube => (cube::normal(hit.part), Some(cube::face(hit.part))),
-            Kind::Plane | Kind::Disk => (plane::NORMAL, None),
-            Kind::Cylinder => (cylinder::normal(object_point, hit.part), None),
-            Kind::Cone => (cone::normal(object_point, hit.part), None),
-            Kind::Mesh(m) => (m.normal(hit.part), None),
-        };
+        let n_object = s.shape.normal(object_point, hit.part);
+        let face = s.shape.face(hit.part);
         let place = &self.placements[hit.object as usize];
         let mut normal = place.normal_from_object.mul_vec3(n_object).normalize();
         let front = normal.dot(ray.dir) < 0.0;
@@ -326,16 +272,6 @@ impl World {
     /// The `world_from_object` transform of object `i`.
     pub fn transform(&self, i: u32) -> &Transform {
         &self.placements[i as usize].world_from_object
-    }
-}
-
-/// A mesh's world bounds from its transformed vertices (tighter than its box's corners).
-fn mesh_world_bounds(shape: &Shape, t: &Transform) -> Option<Aabb> {
-    match shape {
-        Shape::Mesh(m) => Some(m.indices.iter().flatten().fold(Aabb::EMPTY, |b, &i| {
-            b.grow(t.forward.transform_point3(m.positions[i as usize]))
-        })),
-        _ => None,
     }
 }
 

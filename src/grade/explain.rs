@@ -526,19 +526,7 @@ impl Probe for Recorder {
 
 /// The name of a part of a shape, as the shape files number them.
 pub fn part_label(shape: &Shape, part: u32) -> String {
-    match shape {
-        Shape::Cube => crate::geometry::shapes::cube::face(part).label().to_owned(),
-        Shape::Cylinder => ["side", "top", "bottom"]
-            .get(part as usize)
-            .unwrap_or(&"side")
-            .to_string(),
-        Shape::Cone => ["side", "base"]
-            .get(part as usize)
-            .unwrap_or(&"side")
-            .to_string(),
-        Shape::Mesh(_) => format!("triangle {part}"),
-        other => other.name().to_owned(),
-    }
+    shape.part_label(part).into_owned()
 }
 
 struct Explainer<'a> {
@@ -856,7 +844,7 @@ impl Explainer<'_> {
             .unwrap_or_else(|| ray.transformed(&world.transform(i).inverse));
         let hit_part = result.map(|(_, p)| part_label(shape, p));
         let side_hit = result.filter(|&(_, p)| p == 0).map(|(t, _)| t);
-        let bounded_height = matches!(shape, Shape::Cylinder | Shape::Cone);
+        let bounded_height = shape.bounded_quadric();
 
         let quadratics = rec
             .quadratics
@@ -963,7 +951,7 @@ impl Explainer<'_> {
             faces,
             triangles,
             triangles_unlisted: unlisted,
-            linear_side: matches!(shape, Shape::Cone) && rec.quadratics.is_empty(),
+            linear_side: shape.linear_side() && rec.quadratics.is_empty(),
             lambda: result.map(|(t, _)| t),
             part: hit_part,
             chosen,

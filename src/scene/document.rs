@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::fmt;
 
 use serde::de::{self, MapAccess, Visitor};
-use serde::{Deserialize, Deserializer, Serialize};
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 /// `[x, y, z]`.
 pub type Vec3 = [f64; 3];
@@ -187,25 +187,9 @@ pub enum MaterialRefDoc {
     Inline(MaterialDoc),
 }
 
-/// The shapes of SPEC §2.2.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ShapeName {
-    /// Unit sphere.
-    Sphere,
-    /// `[-1, 1]³`.
-    Cube,
-    /// `y = 0`.
-    Plane,
-    /// `y = 0, x² + z² ≤ 1`.
-    Disk,
-    /// `x² + z² = 1, |y| ≤ 1`, capped.
-    Cylinder,
-    /// Apex `(0, 1, 0)`, base radius 1 at `y = −1`.
-    Cone,
-    /// Inline triangles.
-    Mesh,
-}
+/// The shapes of SPEC §2.2, by the names documents use. The list lives with the shapes
+/// (`crate::geometry::shapes`), so a new shape is a name here too.
+pub use crate::geometry::ShapeName;
 
 /// One object.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -333,5 +317,151 @@ impl<'de> Deserialize<'de> for AxisDoc {
             }
         }
         d.deserialize_any(V)
+    }
+}
+
+// `ShapeName` is written and read exactly as serde's derive does it for a unit enum with
+// lowercase names (the same messages for an unknown shape), its names coming from the
+// shapes themselves.
+
+impl Serialize for ShapeName {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_unit_variant("ShapeName", *self as u32, self.as_str())
+    }
+}
+
+impl<'de> Deserialize<'de> for ShapeName {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        /// The variant's identifier: a name, or its index in formats that write one.
+        struct Variant(ShapeName);
+        impl<'de> Deserialize<'de> for Variant {
+            fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+                struct V;
+                impl<'de> Visitor<'de> for V {
+                    type Value = Variant;
+                    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                        f.write_str("variant identifier")
+                    }
+                    fn visit_u64<E: de::Error>(self, v: u64) -> Result<Self::Value, E> {
+                        let all = ShapeName::ALL;
+                        match usize::try_from(v).ok().and_then(|i| all.get(i)) {
+                            Some(&n) => Ok(Variant(n)),
+                            None => Err(E::invalid_value(
+                                de::Unexpected::Unsigned(v),
+                                &format!("variant index 0 <= i < {}", all.len()).as_str(),
+                            )),
+                        }
+                    }
+                    fn visit_str<E: de::Error>(self, v: &str) -> Result<Self::Value, E> {
+                        ShapeName::from_name(v)
+                            .map(Variant)
+                            .ok_or_else(|| E::unknown_variant(v, ShapeName::NAMES))
+                    }
+                    fn visit_bytes<E: de::Error>(self, v: &[u8]) -> Result<Self::Value, E> {
+                        match std::str::from_utf8(v).ok().and_then(ShapeName::from_name) {
+                            Some(n) => Ok(Variant(n)),
+                            None => Err(E::unknown_variant(
+                                &String::from_utf8_lossy(v),
+                                ShapeName::NAMES,
+                            )),
+                        }
+                    }
+                }
+                d.deserialize_identifier(V)
+            }
+        }
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = ShapeName;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("enum ShapeName")
+            }
+            fn visit_enum<A: de::EnumAccess<'de>>(self, data: A) -> Result<Self::Value, A::Error> {
+                let (Variant(name), variant) = data.variant()?;
+                de::VariantAccess::unit_variant(variant)?;
+                Ok(name)
+            }
+        }
+        d.deserialize_enum("ShapeName", ShapeName::NAMES, V)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The enum as serde's derive wrote it before the names moved to the shapes.
+    mod derived {
+        #[derive(Debug, serde::Serialize, serde::Deserialize)]
+        #[serde(rename_all = "lowercase")]
+        pub enum ShapeName {
+            Sphere,
+            Cube,
+            Plane,
+            Disk,
+            Cylinder,
+            Cone,
+            Mesh,
+        }
+    }
+
+    fn outcome<T: Serialize>(r: Result<T, serde_json::Error>) -> Result<String, String> {
+        r.map(|v| serde_json::to_string(&v).unwrap())
+            .map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn shape_names_read_and_write_as_the_derived_enum_did() {
+        for text in [
+            r#""sphere""#,
+            r#""cube""#,
+            r#""plane""#,
+            r#""disk""#,
+            r#""cylinder""#,
+            r#""cone""#,
+            r#""mesh""#,
+            r#""m\u0065sh""#,
+            r#""teapot""#,
+            r#""Sphere""#,
+            r#""""#,
+            "3",
+            "-1",
+            "1.5",
+            "null",
+            "true",
+            "[]",
+            "{}",
+            r#"{"sphere": null}"#,
+            r#"{"sphere": 1}"#,
+            r#"{"teapot": null}"#,
+            r#"{"sphere": null, "cube": null}"#,
+        ] {
+            assert_eq!(
+                outcome(serde_json::from_str::<ShapeName>(text)),
+                outcome(serde_json::from_str::<derived::ShapeName>(text)),
+                "from text {text}"
+            );
+            let value: serde_json::Value = serde_json::from_str(text).unwrap();
+            assert_eq!(
+                outcome(serde_json::from_value::<ShapeName>(value.clone())),
+                outcome(serde_json::from_value::<derived::ShapeName>(value)),
+                "from a value {text}"
+            );
+        }
+    }
+
+    #[test]
+    fn an_unknown_shape_lists_every_name() {
+        let doc = r#"{"shape": "teapot"}"#;
+        let e = serde_json::from_str::<ObjectDoc>(doc)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with(
+                "unknown variant `teapot`, expected one of `sphere`, `cube`, `plane`, `disk`, \
+                 `cylinder`, `cone`, `mesh`"
+            ),
+            "{e}"
+        );
     }
 }

@@ -13,7 +13,7 @@ use serde_json::Value;
 use super::document::*;
 use super::problem::{Pointer, Problem, SceneError};
 use super::{Camera, Light, Limits, Material, Object, Scene};
-use crate::geometry::{MeshData, Shape, Transform};
+use crate::geometry::{Mesh, NeedsData, Shape, Transform};
 
 /// At most this many problems are listed; the rest are counted.
 const MAX_PROBLEMS: usize = 100;
@@ -640,14 +640,9 @@ fn look_at(la: &LookAtDoc, at: &Pointer, p: &mut Problems) -> Option<Transform> 
 }
 
 fn shape(o: &ObjectDoc, at: &Pointer, p: &mut Problems) -> Option<Shape> {
-    let s = match o.shape {
-        ShapeName::Sphere => Shape::Sphere,
-        ShapeName::Cube => Shape::Cube,
-        ShapeName::Plane => Shape::Plane,
-        ShapeName::Disk => Shape::Disk,
-        ShapeName::Cylinder => Shape::Cylinder,
-        ShapeName::Cone => Shape::Cone,
-        ShapeName::Mesh => {
+    let s = match Shape::plain(o.shape) {
+        Ok(s) => s,
+        Err(NeedsData::Mesh) => {
             let (Some(positions), Some(indices)) = (&o.positions, &o.indices) else {
                 for (k, present) in [
                     ("positions", o.positions.is_some()),
@@ -675,10 +670,10 @@ fn shape(o: &ObjectDoc, at: &Pointer, p: &mut Problems) -> Option<Shape> {
             if !ok {
                 return None;
             }
-            return Some(Shape::Mesh(Arc::new(MeshData {
-                positions: positions.iter().map(|&v| vec3(v)).collect(),
-                indices: indices.clone(),
-            })));
+            return Some(Shape::Mesh(Arc::new(Mesh::new(
+                positions.iter().map(|&v| vec3(v)).collect(),
+                indices.clone(),
+            ))));
         }
     };
     for (k, present) in [

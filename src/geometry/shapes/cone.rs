@@ -3,8 +3,48 @@
 
 use glam::DVec3;
 
-use super::{plane::intersect_y0, solve_quadratic};
-use crate::geometry::{hit::Probe, ray::Ray};
+use std::borrow::Cow;
+
+use super::{CanonicalShape, plane::intersect_y0, solve_quadratic};
+use crate::geometry::{bounds::Aabb, hit::Probe, ray::Ray};
+
+/// The parts' labels, by part index; the tests report under the same labels.
+const PARTS: [&str; 2] = ["side", "base"];
+
+/// The cone as a [`CanonicalShape`]: closed, its side cut to `−1 ≤ y ≤ 1` and linear
+/// for rays parallel to a generator line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Cone;
+
+impl CanonicalShape for Cone {
+    const NAME: &'static str = "cone";
+    const CLOSED: bool = true;
+    const BOUNDED_QUADRIC: bool = true;
+    const LINEAR_SIDE: bool = true;
+
+    fn bounds(&self) -> Option<Aabb> {
+        Some(Aabb::CANONICAL)
+    }
+
+    #[inline(always)]
+    fn intersect<P: Probe>(
+        &self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        probe: &mut P,
+    ) -> Option<(f64, u32)> {
+        intersect(ray, t_min, t_max, probe)
+    }
+
+    fn normal(&self, object_point: DVec3, part: u32) -> DVec3 {
+        normal(object_point, part)
+    }
+
+    fn part_label(&self, part: u32) -> Cow<'static, str> {
+        Cow::Borrowed(PARTS.get(part as usize).unwrap_or(&PARTS[0]))
+    }
+}
 
 /// With `k = 1 − y₀`, the side is `a λ² + b λ + c = 0`, `a = Δx² + Δz² − Δy²/4`,
 /// `b = 2(x₀Δx + z₀Δz) + kΔy/2`, `c = x₀² + z₀² − k²/4`, valid where `−1 ≤ y ≤ 1`
@@ -22,7 +62,7 @@ pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> 
         // Parallel to a generator line: the quadratic is linear.
         [(b != 0.0).then(|| -c / b), None]
     } else {
-        solve_quadratic("side", a, b, c, probe)
+        solve_quadratic(PARTS[0], a, b, c, probe)
     };
     for t in roots.into_iter().flatten() {
         let y = o.y + t * d.y;
@@ -31,7 +71,7 @@ pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> 
             limit = t;
         }
     }
-    if let Some(t) = intersect_y0("base", ray, -1.0, 1.0, t_min, limit, probe) {
+    if let Some(t) = intersect_y0(PARTS[1], ray, -1.0, 1.0, t_min, limit, probe) {
         best = Some((t, 1));
     }
     best

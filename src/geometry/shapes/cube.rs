@@ -2,10 +2,50 @@
 
 use glam::DVec3;
 
+use std::borrow::Cow;
+
+use super::CanonicalShape;
 use crate::geometry::{
+    bounds::Aabb,
     hit::{Face, FaceTest, Probe},
     ray::{PARALLEL_EPSILON, Ray},
 };
+
+/// The cube as a [`CanonicalShape`]: six parts, the faces in [`Face::ALL`] order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Cube;
+
+impl CanonicalShape for Cube {
+    const NAME: &'static str = "cube";
+    const CLOSED: bool = true;
+
+    fn bounds(&self) -> Option<Aabb> {
+        Some(Aabb::CANONICAL)
+    }
+
+    #[inline(always)]
+    fn intersect<P: Probe>(
+        &self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        probe: &mut P,
+    ) -> Option<(f64, u32)> {
+        intersect(ray, t_min, t_max, probe)
+    }
+
+    fn normal(&self, _object_point: DVec3, part: u32) -> DVec3 {
+        normal(part)
+    }
+
+    fn face(&self, part: u32) -> Option<Face> {
+        Some(face(part))
+    }
+
+    fn part_label(&self, part: u32) -> Cow<'static, str> {
+        Cow::Borrowed(face(part).label())
+    }
+}
 
 /// The smallest valid face `λ` in `(t_min, t_max)` and the face's index in
 /// [`Face::ALL`]. For the face `x = ±1`: `λ = (±1 − x₀)/Δx`, valid when the other two

@@ -4,8 +4,46 @@
 
 use glam::DVec3;
 
-use super::{plane::intersect_y0, solve_quadratic};
-use crate::geometry::{hit::Probe, ray::Ray};
+use std::borrow::Cow;
+
+use super::{CanonicalShape, plane::intersect_y0, solve_quadratic};
+use crate::geometry::{bounds::Aabb, hit::Probe, ray::Ray};
+
+/// The parts' labels, by part index; the tests report under the same labels.
+const PARTS: [&str; 3] = ["side", "top", "bottom"];
+
+/// The cylinder as a [`CanonicalShape`]: closed, its side cut to `−1 ≤ y ≤ 1`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Cylinder;
+
+impl CanonicalShape for Cylinder {
+    const NAME: &'static str = "cylinder";
+    const CLOSED: bool = true;
+    const BOUNDED_QUADRIC: bool = true;
+
+    fn bounds(&self) -> Option<Aabb> {
+        Some(Aabb::CANONICAL)
+    }
+
+    #[inline(always)]
+    fn intersect<P: Probe>(
+        &self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        probe: &mut P,
+    ) -> Option<(f64, u32)> {
+        intersect(ray, t_min, t_max, probe)
+    }
+
+    fn normal(&self, object_point: DVec3, part: u32) -> DVec3 {
+        normal(object_point, part)
+    }
+
+    fn part_label(&self, part: u32) -> Cow<'static, str> {
+        Cow::Borrowed(PARTS.get(part as usize).unwrap_or(&PARTS[0]))
+    }
+}
 
 /// The side is `a λ² + b λ + c = 0` with `a = Δx² + Δz²`, `b = 2(x₀Δx + z₀Δz)`,
 /// `c = x₀² + z₀² − 1`, valid where `−1 ≤ y ≤ 1`; the caps are disks at `y = ±1`.
@@ -17,7 +55,7 @@ pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> 
     let c = o.x * o.x + o.z * o.z - 1.0;
     let mut best: Option<(f64, u32)> = None;
     let mut limit = t_max;
-    for t in solve_quadratic("side", a, b, c, probe)
+    for t in solve_quadratic(PARTS[0], a, b, c, probe)
         .into_iter()
         .flatten()
     {
@@ -27,7 +65,7 @@ pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> 
             limit = t;
         }
     }
-    for (part, (label, h)) in [("top", 1.0), ("bottom", -1.0)].into_iter().enumerate() {
+    for (part, (label, h)) in [(PARTS[1], 1.0), (PARTS[2], -1.0)].into_iter().enumerate() {
         if let Some(t) = intersect_y0(label, ray, h, 1.0, t_min, limit, probe) {
             best = Some((t, part as u32 + 1));
             limit = t;

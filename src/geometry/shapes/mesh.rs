@@ -3,28 +3,44 @@
 //! The ray is tested with Möller–Trumbore in object space, edges included; a triangle
 //! whose determinant is exactly zero (the ray lies in its plane, or it has no area) is
 //! not hit. The normal is the triangle's geometric normal `(v₁ − v₀) × (v₂ − v₀)`.
+//! Parts are triangles, numbered as the scene lists them.
 
-use std::sync::Arc;
+use std::borrow::Cow;
+use std::fmt;
+use std::sync::OnceLock;
 
 use glam::DVec3;
 
+use super::CanonicalShape;
 use crate::geometry::{
     bounds::{Aabb, SlabRay},
     bvh::Bvh,
     hit::{Probe, TriangleTest},
     ray::Ray,
+    transform::Transform,
 };
 
-/// A mesh as the scene gives it.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct MeshData {
+/// A mesh as the scene gives it; the BVH over its triangles is built once, by
+/// [`CanonicalShape::prepare`] or the first ray, and kept with it.
+#[derive(Default)]
+pub struct Mesh {
     /// Vertex positions.
     pub positions: Vec<DVec3>,
     /// Triangles as vertex indices (validated to be in range).
     pub indices: Vec<[u32; 3]>,
+    accel: OnceLock<MeshAccel>,
 }
 
-impl MeshData {
+impl Mesh {
+    /// A mesh of `positions` and the triangles `indices`, every index in range.
+    pub fn new(positions: Vec<DVec3>, indices: Vec<[u32; 3]>) -> Mesh {
+        Mesh {
+            positions,
+            indices,
+            accel: OnceLock::new(),
+        }
+    }
+
     /// The corners of triangle `i`.
     pub fn corners(&self, i: usize) -> [DVec3; 3] {
         let [a, b, c] = self.indices[i];
@@ -35,12 +51,82 @@ impl MeshData {
         ]
     }
 
-    /// The object-space bounds of its vertices that some triangle uses.
-    pub fn bounds(&self) -> Aabb {
-        self.indices
-            .iter()
-            .flatten()
-            .fold(Aabb::EMPTY, |b, &i| b.grow(self.positions[i as usize]))
+    #[inline(always)]
+    fn accel(&self) -> &MeshAccel {
+        self.accel.get_or_init(|| MeshAccel::new(self))
+    }
+}
+
+/// Two meshes are equal when the scene gave the same triangles; the BVH follows.
+impl PartialEq for Mesh {
+    fn eq(&self, other: &Mesh) -> bool {
+        self.positions == other.positions && self.indices == other.indices
+    }
+}
+
+impl fmt::Debug for Mesh {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Mesh")
+            .field("positions", &self.positions)
+            .field("indices", &self.indices)
+            .finish_non_exhaustive()
+    }
+}
+
+impl CanonicalShape for Mesh {
+    const NAME: &'static str = "mesh";
+    const CLOSED: bool = false;
+
+    /// The bounds of its vertices that some triangle uses.
+    fn bounds(&self) -> Option<Aabb> {
+        Some(
+            self.indices
+                .iter()
+                .flatten()
+                .fold(Aabb::EMPTY, |b, &i| b.grow(self.positions[i as usize])),
+        )
+    }
+
+    /// The bounds of its transformed vertices (tighter than its box's corners).
+    fn world_bounds(&self, world_from_object: &Transform) -> Option<Aabb> {
+        Some(self.indices.iter().flatten().fold(Aabb::EMPTY, |b, &i| {
+            b.grow(
+                world_from_object
+                    .forward
+                    .transform_point3(self.positions[i as usize]),
+            )
+        }))
+    }
+
+    fn prepare(&self) {
+        self.accel();
+    }
+
+    /// The closest triangle hit in `(t_min, t_max)`: `λ` and the triangle's index.
+    #[inline(always)]
+    fn intersect<P: Probe>(
+        &self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        probe: &mut P,
+    ) -> Option<(f64, u32)> {
+        self.accel().intersect(ray, t_min, t_max, probe)
+    }
+
+    #[inline(always)]
+    fn occludes(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
+        self.accel().occludes(ray, t_min, t_max)
+    }
+
+    /// The geometric normal of triangle `part`.
+    fn normal(&self, _object_point: DVec3, part: u32) -> DVec3 {
+        let [a, b, c] = self.corners(part as usize);
+        (b - a).cross(c - a)
+    }
+
+    fn part_label(&self, part: u32) -> Cow<'static, str> {
+        Cow::Owned(format!("triangle {part}"))
     }
 }
 
@@ -53,18 +139,17 @@ struct Tri {
 }
 
 /// A mesh ready to trace: triangles in BVH leaf order.
-#[derive(Debug, Clone)]
-pub struct MeshAccel {
+#[derive(Debug)]
+struct MeshAccel {
     tris: Vec<Tri>,
     /// For each entry of `tris`, the triangle's index in the scene's `indices`.
     ids: Vec<u32>,
     bvh: Bvh,
-    mesh: Arc<MeshData>,
 }
 
 impl MeshAccel {
     /// Builds the triangle BVH.
-    pub fn new(mesh: &Arc<MeshData>) -> MeshAccel {
+    fn new(mesh: &Mesh) -> MeshAccel {
         let bounds: Vec<Aabb> = (0..mesh.indices.len())
             .map(|i| {
                 let [a, b, c] = mesh.corners(i);
@@ -90,18 +175,12 @@ impl MeshAccel {
             tris,
             ids,
             bvh: bvh.into_leaf_order(),
-            mesh: mesh.clone(),
         }
-    }
-
-    /// The object-space bounds.
-    pub fn bounds(&self) -> Aabb {
-        self.bvh.bounds()
     }
 
     /// The closest triangle hit in `(t_min, t_max)`: `λ` and the triangle's index.
     #[inline]
-    pub fn intersect<P: Probe>(
+    fn intersect<P: Probe>(
         &self,
         ray: &Ray,
         t_min: f64,
@@ -127,17 +206,11 @@ impl MeshAccel {
 
     /// Whether any triangle is hit in `(t_min, t_max)`.
     #[inline]
-    pub fn occludes(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
+    fn occludes(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
         let slab = SlabRay::new(ray.origin, ray.dir);
         self.bvh.any(&slab, t_min, t_max, |k| {
             moller_trumbore(&self.tris[k as usize], ray, t_min, t_max, 0, &mut ()).is_some()
         })
-    }
-
-    /// The object-space geometric normal of triangle `id` (scene order).
-    pub fn normal(&self, id: u32) -> DVec3 {
-        let [a, b, c] = self.mesh.corners(id as usize);
-        (b - a).cross(c - a)
     }
 }
 
@@ -183,22 +256,22 @@ fn moller_trumbore<P: Probe>(
 mod tests {
     use super::*;
 
-    fn quad() -> MeshData {
+    fn quad() -> Mesh {
         // Two triangles making the square [-1,1]² in the z = 0 plane.
-        MeshData {
-            positions: vec![
+        Mesh::new(
+            vec![
                 DVec3::new(-1.0, -1.0, 0.0),
                 DVec3::new(1.0, -1.0, 0.0),
                 DVec3::new(1.0, 1.0, 0.0),
                 DVec3::new(-1.0, 1.0, 0.0),
             ],
-            indices: vec![[0, 1, 2], [0, 2, 3]],
-        }
+            vec![[0, 1, 2], [0, 2, 3]],
+        )
     }
 
     #[test]
     fn hits_each_triangle_and_the_shared_edge() {
-        let m = MeshAccel::new(&Arc::new(quad()));
+        let m = quad();
         let at = |x: f64, y: f64| {
             m.intersect(
                 &Ray::new(DVec3::new(x, y, -2.0), DVec3::Z),
@@ -216,7 +289,7 @@ mod tests {
 
     #[test]
     fn normal_follows_winding() {
-        let m = MeshAccel::new(&Arc::new(quad()));
-        assert_eq!(m.normal(0).normalize(), DVec3::Z);
+        let m = quad();
+        assert_eq!(m.normal(DVec3::ZERO, 0).normalize(), DVec3::Z);
     }
 }

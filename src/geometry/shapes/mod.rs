@@ -4,6 +4,26 @@
 //! `λ` in `(t_min, t_max)` with the *part* that was hit (a cube face, a cap, a
 //! triangle). Normals and other details are computed afterwards, for the closest hit
 //! only. Each test reports its intermediate values to a [`Probe`](super::hit::Probe).
+//!
+//! Each file implements [`CanonicalShape`] once. [`Shape`] is the closed enum the scene
+//! holds and the world traces: every method is one `match` that forwards to the
+//! implementation (pbrt's tagged dispatch, no `dyn`), so the tracer's `()` probe still
+//! compiles away. [`ShapeName`], the name a document writes, comes from the same list:
+//! the `shapes!` invocation below is the only place that enumerates the shapes.
+//!
+//! # Adding a shape
+//!
+//! 1. Write `shapes/<name>.rs` with its tests: a type implementing [`CanonicalShape`]
+//!    (a unit struct when the name alone makes the shape), and declare it with
+//!    `pub mod <name>;` here.
+//! 2. Add one line to the `shapes!` list below: under `plain` for a unit struct, under
+//!    `with_data` for a shape the document gives data for (a mesh; such a shape also
+//!    needs its fields in `scene::document::ObjectDoc` and a branch in
+//!    `scene::validate`, which the compiler then asks for).
+//! 3. Add its name to `objects[].shape` in `api/scene.schema.json` (a test below checks
+//!    that the schema lists exactly the shapes of this module).
+//!
+//! Scene documents, the world, hit data and explanations then know the shape.
 
 pub mod cone;
 pub mod cube;
@@ -13,49 +33,293 @@ pub mod mesh;
 pub mod plane;
 pub mod sphere;
 
+use std::borrow::Cow;
 use std::sync::Arc;
 
-pub use mesh::MeshData;
+use glam::DVec3;
 
-/// A shape as the scene describes it.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Shape {
-    /// The unit sphere `p · p = 1`.
-    Sphere,
-    /// The cube `[-1, 1]³`.
-    Cube,
-    /// The plane `y = 0`.
-    Plane,
-    /// The disk `y = 0, x² + z² ≤ 1`.
-    Disk,
-    /// The capped cylinder `x² + z² = 1, −1 ≤ y ≤ 1`.
-    Cylinder,
-    /// The capped cone with apex `(0, 1, 0)` and base radius 1 at `y = −1`.
-    Cone,
-    /// Triangles in object space.
-    Mesh(Arc<MeshData>),
+pub use mesh::Mesh;
+
+use super::{
+    bounds::Aabb,
+    hit::{Face, Probe},
+    ray::Ray,
+    transform::Transform,
+};
+
+/// What a canonical shape is and does, in its own object space; each shape's file
+/// implements it once. The world carries rays into object space and normals out.
+///
+/// Parts number what a ray can hit, from 0 (a cube face, a cap, a triangle): the
+/// intersection reports one, and the normal, the face and the label read it back.
+pub trait CanonicalShape {
+    /// The name scene documents use for it: `"sphere"`.
+    const NAME: &'static str;
+    /// Whether it encloses a volume. Closed shapes report the outward normal; open ones
+    /// the side facing the ray.
+    const CLOSED: bool;
+    /// Whether its quadratic surface is cut to `−1 ≤ y ≤ 1` (a cylinder's or a cone's
+    /// side), so that a root outside that range does not count.
+    const BOUNDED_QUADRIC: bool = false;
+    /// Whether its side's equation can degenerate to a linear one, solved without
+    /// reporting a quadratic (a cone, for rays parallel to a generator line).
+    const LINEAR_SIDE: bool = false;
+
+    /// The object-space bounds; `None` for an unbounded shape, which every ray tests.
+    fn bounds(&self) -> Option<Aabb>;
+
+    /// The world-space bounds under `world_from_object`: by default the bounds of the
+    /// transformed object box; a shape may give tighter ones.
+    #[inline]
+    fn world_bounds(&self, world_from_object: &Transform) -> Option<Aabb> {
+        self.bounds()
+            .map(|b| b.transformed(&world_from_object.forward))
+    }
+
+    /// Work done once before tracing (a mesh builds its BVH), so that rays find it done.
+    #[inline]
+    fn prepare(&self) {}
+
+    /// The smallest `λ` in `(t_min, t_max)` of a ray in object space, with the part hit;
+    /// every intermediate value goes to `probe`.
+    fn intersect<P: Probe>(
+        &self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        probe: &mut P,
+    ) -> Option<(f64, u32)>;
+
+    /// Whether anything is hit in `(t_min, t_max)` (shadow rays): by default the
+    /// intersection with nothing recorded.
+    #[inline]
+    fn occludes(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
+        self.intersect(ray, t_min, t_max, &mut ()).is_some()
+    }
+
+    /// The object-space normal, not normalised, at a point of a part: outward for a
+    /// closed shape, the geometric normal for an open one.
+    fn normal(&self, object_point: DVec3, part: u32) -> DVec3;
+
+    /// The cube face of a part, for shapes whose parts are faces.
+    #[inline]
+    fn face(&self, _part: u32) -> Option<Face> {
+        None
+    }
+
+    /// The name of a part in explanations: a cube face's label, `"side"`, `"top"`,
+    /// `"triangle 3"`; the shape's name for a shape of one part.
+    fn part_label(&self, _part: u32) -> Cow<'static, str> {
+        Cow::Borrowed(Self::NAME)
+    }
+}
+
+/// Declares the shapes once: [`Shape`], [`ShapeName`], [`NeedsData`] and the one
+/// `match` per method that forwards to each shape's [`CanonicalShape`].
+macro_rules! shapes {
+    (
+        plain { $( $(#[$pdoc:meta])* $P:ident: $PT:path, )* }
+        with_data { $( $(#[$ddoc:meta])* $D:ident: $DT:path, )* }
+    ) => {
+        /// A shape as the scene describes it, ready to trace.
+        #[derive(Debug, Clone, PartialEq)]
+        pub enum Shape {
+            $( $(#[$pdoc])* $P, )*
+            $( $(#[$ddoc])* $D(Arc<$DT>), )*
+        }
+
+        /// A shape's name, as a scene document writes it (`"sphere"`).
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+        pub enum ShapeName {
+            $( $(#[$pdoc])* $P, )*
+            $( $(#[$ddoc])* $D, )*
+        }
+
+        /// A shape that its name alone does not make: the document gives its data.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+        pub enum NeedsData {
+            $( $(#[$ddoc])* $D, )*
+        }
+
+        impl ShapeName {
+            /// Every shape, in the order of the list.
+            pub const ALL: &'static [ShapeName] = &[
+                $( ShapeName::$P, )*
+                $( ShapeName::$D, )*
+            ];
+
+            /// Their names, in the same order.
+            pub const NAMES: &'static [&'static str] = &[
+                $( <$PT as CanonicalShape>::NAME, )*
+                $( <$DT as CanonicalShape>::NAME, )*
+            ];
+        }
+
+        impl Shape {
+            /// The shape of a name, or which data the document must give for it.
+            pub fn plain(name: ShapeName) -> Result<Shape, NeedsData> {
+                match name {
+                    $( ShapeName::$P => Ok(Shape::$P), )*
+                    $( ShapeName::$D => Err(NeedsData::$D), )*
+                }
+            }
+
+            /// Which shape this is.
+            #[inline]
+            pub fn kind(&self) -> ShapeName {
+                match self {
+                    $( Shape::$P => ShapeName::$P, )*
+                    $( Shape::$D(_) => ShapeName::$D, )*
+                }
+            }
+
+            /// See [`CanonicalShape::CLOSED`].
+            #[inline]
+            pub fn is_closed(&self) -> bool {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::CLOSED, )*
+                    $( Shape::$D(_) => <$DT as CanonicalShape>::CLOSED, )*
+                }
+            }
+
+            /// See [`CanonicalShape::BOUNDED_QUADRIC`].
+            pub fn bounded_quadric(&self) -> bool {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::BOUNDED_QUADRIC, )*
+                    $( Shape::$D(_) => <$DT as CanonicalShape>::BOUNDED_QUADRIC, )*
+                }
+            }
+
+            /// See [`CanonicalShape::LINEAR_SIDE`].
+            pub fn linear_side(&self) -> bool {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::LINEAR_SIDE, )*
+                    $( Shape::$D(_) => <$DT as CanonicalShape>::LINEAR_SIDE, )*
+                }
+            }
+
+            /// See [`CanonicalShape::bounds`].
+            pub fn bounds(&self) -> Option<Aabb> {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::bounds(&$PT), )*
+                    $( Shape::$D(s) => <$DT as CanonicalShape>::bounds(s), )*
+                }
+            }
+
+            /// See [`CanonicalShape::world_bounds`].
+            pub fn world_bounds(&self, world_from_object: &Transform) -> Option<Aabb> {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::world_bounds(&$PT, world_from_object), )*
+                    $( Shape::$D(s) => <$DT as CanonicalShape>::world_bounds(s, world_from_object), )*
+                }
+            }
+
+            /// See [`CanonicalShape::prepare`].
+            pub fn prepare(&self) {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::prepare(&$PT), )*
+                    $( Shape::$D(s) => <$DT as CanonicalShape>::prepare(s), )*
+                }
+            }
+
+            /// See [`CanonicalShape::intersect`].
+            #[inline(always)]
+            pub fn intersect<P: Probe>(
+                &self,
+                ray: &Ray,
+                t_min: f64,
+                t_max: f64,
+                probe: &mut P,
+            ) -> Option<(f64, u32)> {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::intersect(&$PT, ray, t_min, t_max, probe), )*
+                    $( Shape::$D(s) => <$DT as CanonicalShape>::intersect(s, ray, t_min, t_max, probe), )*
+                }
+            }
+
+            /// See [`CanonicalShape::occludes`].
+            #[inline(always)]
+            pub fn occludes(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::occludes(&$PT, ray, t_min, t_max), )*
+                    $( Shape::$D(s) => <$DT as CanonicalShape>::occludes(s, ray, t_min, t_max), )*
+                }
+            }
+
+            /// See [`CanonicalShape::normal`].
+            #[inline]
+            pub fn normal(&self, object_point: DVec3, part: u32) -> DVec3 {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::normal(&$PT, object_point, part), )*
+                    $( Shape::$D(s) => <$DT as CanonicalShape>::normal(s, object_point, part), )*
+                }
+            }
+
+            /// See [`CanonicalShape::face`].
+            #[inline]
+            pub fn face(&self, part: u32) -> Option<Face> {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::face(&$PT, part), )*
+                    $( Shape::$D(s) => <$DT as CanonicalShape>::face(s, part), )*
+                }
+            }
+
+            /// See [`CanonicalShape::part_label`].
+            pub fn part_label(&self, part: u32) -> Cow<'static, str> {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::part_label(&$PT, part), )*
+                    $( Shape::$D(s) => <$DT as CanonicalShape>::part_label(s, part), )*
+                }
+            }
+        }
+    };
+}
+
+shapes! {
+    plain {
+        /// The unit sphere `p · p = 1`.
+        Sphere: sphere::Sphere,
+        /// The cube `[-1, 1]³`.
+        Cube: cube::Cube,
+        /// The plane `y = 0`.
+        Plane: plane::Plane,
+        /// The disk `y = 0, x² + z² ≤ 1`.
+        Disk: disk::Disk,
+        /// The capped cylinder `x² + z² = 1, −1 ≤ y ≤ 1`.
+        Cylinder: cylinder::Cylinder,
+        /// The capped cone with apex `(0, 1, 0)` and base radius 1 at `y = −1`.
+        Cone: cone::Cone,
+    }
+    with_data {
+        /// Triangles in object space.
+        Mesh: mesh::Mesh,
+    }
 }
 
 impl Shape {
     /// The name used in scene documents.
+    #[inline]
     pub fn name(&self) -> &'static str {
-        match self {
-            Shape::Sphere => "sphere",
-            Shape::Cube => "cube",
-            Shape::Plane => "plane",
-            Shape::Disk => "disk",
-            Shape::Cylinder => "cylinder",
-            Shape::Cone => "cone",
-            Shape::Mesh(_) => "mesh",
-        }
+        self.kind().as_str()
+    }
+}
+
+impl ShapeName {
+    /// The name as documents write it.
+    #[inline]
+    pub fn as_str(self) -> &'static str {
+        Self::NAMES[self as usize]
     }
 
-    /// Closed shapes report the outward normal; open ones the side facing the ray.
-    pub fn is_closed(&self) -> bool {
-        matches!(
-            self,
-            Shape::Sphere | Shape::Cube | Shape::Cylinder | Shape::Cone
-        )
+    /// The shape a document's name means, if any.
+    pub fn from_name(name: &str) -> Option<ShapeName> {
+        Self::ALL.iter().copied().find(|n| n.as_str() == name)
+    }
+}
+
+impl std::fmt::Display for ShapeName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
     }
 }
 
@@ -90,4 +354,141 @@ pub(crate) fn solve_quadratic<P: super::hit::Probe>(
         });
     }
     roots
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::hit::{FaceTest, Probe};
+
+    fn every_shape() -> Vec<Shape> {
+        ShapeName::ALL
+            .iter()
+            .map(|&n| match Shape::plain(n) {
+                Ok(s) => s,
+                // A tetrahedron around the origin, inside the canonical box.
+                Err(NeedsData::Mesh) => Shape::Mesh(Arc::new(Mesh::new(
+                    vec![
+                        DVec3::new(0.9, 0.9, 0.9),
+                        DVec3::new(0.9, -0.9, -0.9),
+                        DVec3::new(-0.9, 0.9, -0.9),
+                        DVec3::new(-0.9, -0.9, 0.9),
+                    ],
+                    vec![[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]],
+                ))),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_schema_lists_exactly_these_shapes() {
+        let schema: serde_json::Value = serde_json::from_str(include_str!(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/api/scene.schema.json"
+        )))
+        .unwrap();
+        let listed = &schema["$defs"]["object"]["properties"]["shape"]["enum"];
+        assert_eq!(listed, &serde_json::json!(ShapeName::NAMES));
+    }
+
+    #[test]
+    fn names_and_shapes_correspond() {
+        assert_eq!(ShapeName::ALL.len(), ShapeName::NAMES.len());
+        for (s, &n) in every_shape().iter().zip(ShapeName::ALL) {
+            assert_eq!(s.kind(), n);
+            assert_eq!(s.name(), n.as_str());
+            assert_eq!(ShapeName::from_name(n.as_str()), Some(n));
+            assert_eq!(n.to_string(), n.as_str());
+        }
+        assert_eq!(ShapeName::from_name("teapot"), None);
+        assert_eq!(
+            Shape::plain(ShapeName::Mesh),
+            Err(NeedsData::Mesh),
+            "a mesh needs its triangles"
+        );
+    }
+
+    /// Keeps the planar face tests, to compare with the part reported.
+    #[derive(Default)]
+    struct Faces(Vec<FaceTest>);
+
+    impl Probe for Faces {
+        fn face(&mut self, f: &FaceTest) {
+            self.0.push(*f);
+        }
+        fn active(&self) -> bool {
+            true
+        }
+    }
+
+    /// Rays from a sphere of radius 4 toward points of `[-1.5, 1.5]³`, the same each run.
+    fn rays(n: usize) -> impl Iterator<Item = Ray> {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        (0..n).map(move |_| {
+            let from = DVec3::new(next(), next(), next()).normalize_or(DVec3::Z) * 4.0;
+            let to = DVec3::new(next(), next(), next()) * 1.5;
+            Ray::new(from, to - from)
+        })
+    }
+
+    #[test]
+    fn hits_lie_within_the_bounds_and_agree_with_occlusion_and_labels() {
+        for shape in every_shape() {
+            let mut hits = 0;
+            for ray in rays(4000) {
+                let mut faces = Faces::default();
+                let hit = shape.intersect(&ray, 1e-9, f64::INFINITY, &mut faces);
+                assert_eq!(
+                    shape.occludes(&ray, 1e-9, f64::INFINITY),
+                    hit.is_some(),
+                    "{} {ray:?}",
+                    shape.name()
+                );
+                let Some((t, part)) = hit else { continue };
+                hits += 1;
+                let p = ray.at(t);
+                if let Some(b) = shape.bounds() {
+                    let slack = DVec3::splat(1e-9);
+                    assert!(
+                        p.cmpge(b.min - slack).all() && p.cmple(b.max + slack).all(),
+                        "{} hit at {p} outside {b:?}",
+                        shape.name()
+                    );
+                }
+                let n = shape.normal(p, part);
+                assert!(n.is_finite() && n != DVec3::ZERO, "{}", shape.name());
+                // A planar part's label is the label its face test reported under.
+                let label = shape.part_label(part);
+                if let Some(f) = faces.0.iter().find(|f| f.within && f.lambda == Some(t)) {
+                    assert_eq!(f.face, label, "{}", shape.name());
+                }
+            }
+            assert!(hits > 100, "{}: only {hits} hits", shape.name());
+        }
+    }
+
+    #[test]
+    fn parts_have_their_labels() {
+        let label = |s: &Shape, part: u32| s.part_label(part).into_owned();
+        assert_eq!(label(&Shape::Sphere, 0), "sphere");
+        assert_eq!(label(&Shape::Plane, 0), "plane");
+        assert_eq!(label(&Shape::Cube, 5), "-z");
+        assert_eq!(label(&Shape::Cylinder, 2), "bottom");
+        assert_eq!(label(&Shape::Cone, 1), "base");
+        assert_eq!(label(&Shape::Cone, 7), "side");
+        let mesh = every_shape().pop().unwrap();
+        assert_eq!(label(&mesh, 3), "triangle 3");
+        assert_eq!(Shape::Cube.face(1), Some(Face::NegX));
+        assert_eq!(Shape::Cylinder.face(1), None);
+        assert!(Shape::Cone.bounded_quadric() && Shape::Cone.linear_side());
+        assert!(Shape::Cylinder.bounded_quadric() && !Shape::Cylinder.linear_side());
+        assert!(!Shape::Sphere.bounded_quadric());
+        assert!(!Shape::Plane.is_closed() && !mesh.is_closed() && Shape::Cube.is_closed());
+    }
 }

@@ -2,10 +2,40 @@
 
 use glam::DVec3;
 
+use super::CanonicalShape;
 use crate::geometry::{
+    bounds::Aabb,
     hit::{FaceTest, Probe},
     ray::{PARALLEL_EPSILON, Ray},
 };
+
+/// The plane as a [`CanonicalShape`]: one part, open and unbounded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Plane;
+
+impl CanonicalShape for Plane {
+    const NAME: &'static str = "plane";
+    const CLOSED: bool = false;
+
+    fn bounds(&self) -> Option<Aabb> {
+        None
+    }
+
+    #[inline(always)]
+    fn intersect<P: Probe>(
+        &self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        probe: &mut P,
+    ) -> Option<(f64, u32)> {
+        intersect(ray, t_min, t_max, probe).map(|t| (t, 0))
+    }
+
+    fn normal(&self, _object_point: DVec3, _part: u32) -> DVec3 {
+        NORMAL
+    }
+}
 
 /// `λ = (0 − y₀)/Δy`, skipped when `|Δy| < 1e-12`. `radius2` bounds `x² + z²` (a disk);
 /// `f64::INFINITY` gives the plane.

@@ -2,8 +2,49 @@
 
 use glam::DVec3;
 
-use super::solve_quadratic;
-use crate::geometry::{hit::Probe, ray::Ray};
+use super::{CanonicalShape, solve_quadratic};
+use crate::geometry::{bounds::Aabb, hit::Probe, ray::Ray, transform::Transform};
+
+/// The unit sphere as a [`CanonicalShape`]: one part, closed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Sphere;
+
+impl CanonicalShape for Sphere {
+    const NAME: &'static str = "sphere";
+    const CLOSED: bool = true;
+
+    fn bounds(&self) -> Option<Aabb> {
+        Some(Aabb::CANONICAL)
+    }
+
+    /// A transformed sphere is an ellipsoid whose exact extent along axis i is the
+    /// length of row i of the 3 × 3 part.
+    fn world_bounds(&self, world_from_object: &Transform) -> Option<Aabb> {
+        let m = world_from_object.forward.matrix3;
+        let t = world_from_object.forward.translation;
+        let r = DVec3::new(m.row(0).length(), m.row(1).length(), m.row(2).length());
+        Some(Aabb {
+            min: t - r,
+            max: t + r,
+        })
+    }
+
+    #[inline(always)]
+    fn intersect<P: Probe>(
+        &self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        probe: &mut P,
+    ) -> Option<(f64, u32)> {
+        intersect(ray, t_min, t_max, probe).map(|t| (t, 0))
+    }
+
+    #[inline(always)]
+    fn normal(&self, object_point: DVec3, _part: u32) -> DVec3 {
+        normal(object_point)
+    }
+}
 
 /// The smallest root of `a λ² + b λ + c = 0` in `(t_min, t_max)`, with
 /// `a = d·d`, `b = 2 p₀·d`, `c = p₀·p₀ − 1`.
