@@ -92,22 +92,6 @@ pub fn facing_normal(s: &Surface, dir: DVec3) -> DVec3 {
     }
 }
 
-/// One light's terms at a surface point seen along `dir`, its shadow ray traced.
-#[inline]
-pub fn light_term(
-    world: &World,
-    light: &Light,
-    s: &Surface,
-    n: DVec3,
-    dir: DVec3,
-    m: &Material,
-) -> LightTerm {
-    let term = unshadowed_light_term(light, s, n, dir, m);
-    let blocked = !term.outside_cone
-        && world.occluded(&term.shadow_ray, SECONDARY_LAMBDA_MIN, term.shadow_t_max);
-    term.shadowed(blocked)
-}
-
 /// One light's terms as if nothing blocked it; the shadow ray is made, not traced.
 // Always inlined: with the tracer generic over its probe, the inliner would otherwise
 // leave a call per light and per hit in the render hot path.
