@@ -10,10 +10,15 @@
 //! moved by [`surface_offset`] along the normal, to the side the ray leaves by, and they
 //! count hits with `λ > 1e-9`. Reflected and refracted directions are unit vectors; a
 //! shadow ray toward a point light runs from that origin to the light at `λ = 1`.
+//!
+//! The recursion is written once, in [`Shader::trace_probed`], generic over a
+//! [`ShadingProbe`] as the shape tests are over [`Probe`](crate::geometry::Probe): the
+//! renderer's `()` compiles to the bare tracer, and explaining a pixel passes a recorder
+//! that sees every value the tracer computes.
 
 use glam::DVec3;
 
-use crate::geometry::{Ray, Surface, World};
+use crate::geometry::{Hit, Ray, Surface, World};
 use crate::scene::{Light, Material, Scene};
 
 /// Smallest `λ` of a secondary ray's hit.
@@ -53,6 +58,19 @@ pub struct LightTerm {
     pub specular: DVec3,
 }
 
+impl LightTerm {
+    /// The terms once the shadow ray's verdict is known: a blocked light adds nothing.
+    #[inline]
+    pub fn shadowed(mut self, blocked: bool) -> LightTerm {
+        self.blocked = blocked;
+        if blocked {
+            self.diffuse = DVec3::ZERO;
+            self.specular = DVec3::ZERO;
+        }
+        self
+    }
+}
+
 /// The directions a surface sends secondary rays in.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Bounce {
@@ -74,29 +92,10 @@ pub fn facing_normal(s: &Surface, dir: DVec3) -> DVec3 {
     }
 }
 
-/// One light's terms at a surface point seen along `dir`, its shadow ray traced.
-#[inline]
-pub fn light_term(
-    world: &World,
-    light: &Light,
-    s: &Surface,
-    n: DVec3,
-    dir: DVec3,
-    m: &Material,
-) -> LightTerm {
-    let mut term = unshadowed_light_term(light, s, n, dir, m);
-    if !term.outside_cone {
-        term.blocked = world.occluded(&term.shadow_ray, SECONDARY_LAMBDA_MIN, term.shadow_t_max);
-        if term.blocked {
-            term.diffuse = DVec3::ZERO;
-            term.specular = DVec3::ZERO;
-        }
-    }
-    term
-}
-
 /// One light's terms as if nothing blocked it; the shadow ray is made, not traced.
-#[inline]
+// Always inlined: with the tracer generic over its probe, the inliner would otherwise
+// leave a call per light and per hit in the render hot path.
+#[inline(always)]
 pub fn unshadowed_light_term(
     light: &Light,
     s: &Surface,
@@ -150,7 +149,8 @@ pub fn unshadowed_light_term(
 
 /// The reflected and refracted rays at a surface point hit along `dir`, with `ior` the
 /// material's index (entering from air when the ray meets the outside of the surface).
-#[inline]
+// Always inlined, as `unshadowed_light_term` is.
+#[inline(always)]
 pub fn bounce(s: &Surface, n: DVec3, dir: DVec3, ior: f64) -> Bounce {
     let i = dir.normalize();
     let off = surface_offset(s.point);
@@ -176,6 +176,70 @@ pub fn bounce(s: &Surface, n: DVec3, dir: DVec3, ior: f64) -> Bounce {
     }
 }
 
+/// Which secondary ray a surface sends.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Branch {
+    /// The mirror ray, weighted by `m.mirror`.
+    Reflection,
+    /// The refracted ray (or its total internal reflection), weighted by `m.transmission`.
+    Refraction,
+}
+
+/// Why a hit sends no secondary rays.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NoSecondary {
+    /// The material has neither `mirror` nor `transmission`.
+    Material,
+    /// The ray is already at the scene's `max_depth`.
+    MaxDepth,
+}
+
+/// Receives every value [`Shader::trace_probed`] computes, in the order it computes them.
+/// The renderer passes `()`, whose methods are empty and compile away; explaining a pixel
+/// passes a recorder, so the explanation is the tracer's own computation, not a copy.
+///
+/// Each ray gets its own probe: the one a secondary ray is traced with comes from
+/// [`ShadingProbe::secondary`] and is handed back through [`ShadingProbe::secondary_done`].
+pub trait ShadingProbe: Sized {
+    /// A ray is about to be traced at recursion `depth`, its hits counting for `λ > t_min`.
+    #[inline(always)]
+    fn ray(&mut self, _ray: &Ray, _depth: u32, _t_min: f64) {}
+    /// The ray's closest hit was found, or none (then it returns the background).
+    #[inline(always)]
+    fn closest(&mut self, _hit: Option<&Hit>) {}
+    /// The hit's surface record, its normal turned to face the ray, its material and the
+    /// ambient term `ambient ⊙ m.ambient` the colour starts from.
+    #[inline(always)]
+    fn surface(&mut self, _hit: &Hit, _s: &Surface, _n: DVec3, _m: &Material, _ambient: DVec3) {}
+    /// Light `index`'s unshadowed terms, and whether its shadow ray was blocked: `None`
+    /// when the tracer cast none (outside a spot's cone, or the light would add nothing).
+    #[inline(always)]
+    fn light(&mut self, _index: usize, _light: &Light, _term: &LightTerm, _blocked: Option<bool>) {}
+    /// The hit sends no secondary rays, and why.
+    #[inline(always)]
+    fn no_secondary(&mut self, _why: NoSecondary) {}
+    /// A secondary ray of `branch` is about to be traced (its ray is in `bounce`): the
+    /// probe that follows it.
+    fn secondary(&mut self, branch: Branch, bounce: &Bounce) -> Self;
+    /// The secondary ray of `branch` came back with `colour`; `coefficient ⊙ colour` is
+    /// the `contribution` added to this ray's colour.
+    #[inline(always)]
+    fn secondary_done(
+        &mut self,
+        _branch: Branch,
+        _child: Self,
+        _coefficient: DVec3,
+        _colour: DVec3,
+        _contribution: DVec3,
+    ) {
+    }
+}
+
+impl ShadingProbe for () {
+    #[inline(always)]
+    fn secondary(&mut self, _branch: Branch, _bounce: &Bounce) {}
+}
+
 /// A scene and its world, ready to shade rays.
 pub struct Shader<'a> {
     /// The scene.
@@ -186,40 +250,67 @@ pub struct Shader<'a> {
 
 impl Shader<'_> {
     /// The colour seen along `ray`, a ray at recursion `depth`.
+    #[inline]
     pub fn trace(&self, ray: &Ray, depth: u32, t_min: f64, rays: &mut RayCount) -> DVec3 {
+        self.trace_probed(ray, depth, t_min, rays, &mut ())
+    }
+
+    /// [`Shader::trace`], reporting every step to `probe`.
+    pub fn trace_probed<P: ShadingProbe>(
+        &self,
+        ray: &Ray,
+        depth: u32,
+        t_min: f64,
+        rays: &mut RayCount,
+        probe: &mut P,
+    ) -> DVec3 {
+        probe.ray(ray, depth, t_min);
         rays.0 += 1;
-        let Some(hit) = self.world.closest(ray, t_min, f64::INFINITY) else {
+        let closest = self.world.closest(ray, t_min, f64::INFINITY);
+        probe.closest(closest.as_ref());
+        let Some(hit) = closest else {
             return self.scene.background;
         };
         let s = self.world.surface(ray, &hit);
         let m = &self.scene.materials[self.scene.objects[hit.object as usize].material as usize];
         let n = facing_normal(&s, ray.dir);
         let mut c = self.scene.ambient * m.ambient;
-        for light in &self.scene.lights {
+        probe.surface(&hit, &s, n, m, c);
+        for (k, light) in self.scene.lights.iter().enumerate() {
             let t = unshadowed_light_term(light, &s, n, ray.dir, m);
             let lit = t.diffuse + t.specular;
             // A light that would add nothing needs no shadow ray.
             if t.outside_cone || lit == DVec3::ZERO {
+                probe.light(k, light, &t, None);
                 continue;
             }
             rays.0 += 1;
-            if !self
+            let blocked = self
                 .world
-                .occluded(&t.shadow_ray, SECONDARY_LAMBDA_MIN, t.shadow_t_max)
-            {
+                .occluded(&t.shadow_ray, SECONDARY_LAMBDA_MIN, t.shadow_t_max);
+            probe.light(k, light, &t, Some(blocked));
+            if !blocked {
                 c += lit;
             }
         }
-        if depth < self.scene.max_depth
-            && (m.mirror != DVec3::ZERO || m.transmission != DVec3::ZERO)
-        {
+        if m.mirror == DVec3::ZERO && m.transmission == DVec3::ZERO {
+            probe.no_secondary(NoSecondary::Material);
+        } else if depth >= self.scene.max_depth {
+            probe.no_secondary(NoSecondary::MaxDepth);
+        } else {
             let b = bounce(&s, n, ray.dir, m.ior);
-            if m.mirror != DVec3::ZERO {
-                c += m.mirror * self.trace(&b.reflected, depth + 1, SECONDARY_LAMBDA_MIN, rays);
-            }
-            if m.transmission != DVec3::ZERO {
-                c += m.transmission
-                    * self.trace(&b.refracted, depth + 1, SECONDARY_LAMBDA_MIN, rays);
+            for (branch, coefficient, next) in [
+                (Branch::Reflection, m.mirror, &b.reflected),
+                (Branch::Refraction, m.transmission, &b.refracted),
+            ] {
+                if coefficient != DVec3::ZERO {
+                    let mut child = probe.secondary(branch, &b);
+                    let colour =
+                        self.trace_probed(next, depth + 1, SECONDARY_LAMBDA_MIN, rays, &mut child);
+                    let add = coefficient * colour;
+                    probe.secondary_done(branch, child, coefficient, colour, add);
+                    c += add;
+                }
             }
         }
         c
@@ -240,6 +331,61 @@ pub fn quantise(c: DVec3, gamma: Option<f64>) -> [u8; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::ray::PRIMARY_LAMBDA_MIN;
+    use crate::render::Renderer;
+    use crate::scene::{Limits, parse};
+    use std::sync::Arc;
+
+    /// Counts the rays a probe is shown, down the tree.
+    #[derive(Default)]
+    struct Tally {
+        rays: u64,
+        shadow_rays: u64,
+    }
+
+    impl ShadingProbe for Tally {
+        fn ray(&mut self, _ray: &Ray, _depth: u32, _t_min: f64) {
+            self.rays += 1;
+        }
+        fn light(&mut self, _i: usize, _l: &Light, _t: &LightTerm, blocked: Option<bool>) {
+            self.shadow_rays += blocked.is_some() as u64;
+        }
+        fn secondary(&mut self, _branch: Branch, _bounce: &Bounce) -> Self {
+            Tally::default()
+        }
+        fn secondary_done(&mut self, _b: Branch, child: Self, k: DVec3, c: DVec3, add: DVec3) {
+            assert_eq!(add, k * c);
+            self.rays += child.rays;
+            self.shadow_rays += child.shadow_rays;
+        }
+    }
+
+    /// A probe changes nothing the tracer computes, and is shown every ray it casts.
+    #[test]
+    fn a_probe_sees_every_ray_and_changes_no_colour() {
+        let path = format!("{}/scenes/showcase.json", env!("CARGO_MANIFEST_DIR"));
+        let bytes = std::fs::read(path).unwrap();
+        let r = Renderer::new(Arc::new(parse(&bytes, &Limits::NONE).unwrap()));
+        let shader = Shader {
+            scene: &r.scene,
+            world: &r.world,
+        };
+        for v in (0..r.scene.height).step_by(37) {
+            for u in (0..r.scene.width).step_by(37) {
+                let ray = r.camera.pixel_centre(u, v);
+                let mut plain = RayCount(0);
+                let c = shader.trace(&ray, 0, PRIMARY_LAMBDA_MIN, &mut plain);
+                let (mut probed, mut tally) = (RayCount(0), Tally::default());
+                let p = shader.trace_probed(&ray, 0, PRIMARY_LAMBDA_MIN, &mut probed, &mut tally);
+                assert_eq!(
+                    c.to_array().map(f64::to_bits),
+                    p.to_array().map(f64::to_bits)
+                );
+                assert_eq!(plain.0, probed.0);
+                assert_eq!(tally.rays + tally.shadow_rays, plain.0, "pixel ({u}, {v})");
+            }
+        }
+    }
 
     #[test]
     fn quantise_rounds_and_clamps() {
