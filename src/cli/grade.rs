@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use anyhow::Context;
 
-use super::local::load_scene;
+use super::input::load_scene;
 use crate::grade::explain::{self, Candidates, ExplainOptions};
 use crate::grade::{self, GradeOptions, Hint, Submission, Tolerances, report};
 use crate::render::Renderer;
