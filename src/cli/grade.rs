@@ -12,18 +12,10 @@ use std::sync::Arc;
 use anyhow::Context;
 
 use super::input::load_scene;
+use crate::grade::answer::{ExplanationForm, ReportForm, write_explanation, write_report};
 use crate::grade::explain::{self, Candidates, ExplainOptions};
-use crate::grade::{self, GradeOptions, Hint, Submission, Tolerances, report};
+use crate::grade::{self, GradeOptions, Hint, Submission, Tolerances};
 use crate::render::Renderer;
-
-/// How `trace` prints.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum TraceFormat {
-    /// Laid out like the lecture's worked example.
-    Text,
-    /// The explanation as JSON.
-    Json,
-}
 
 /// Which objects `trace` lists for each ray.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -45,8 +37,8 @@ pub struct TraceArgs {
     #[arg(long, value_parser = parse_pixel)]
     pixel: (u32, u32),
     /// Output format.
-    #[arg(long, value_enum, default_value_t = TraceFormat::Text)]
-    format: TraceFormat,
+    #[arg(long, value_enum, default_value_t = ExplanationForm::Text)]
+    format: ExplanationForm,
     /// Which objects each ray is shown tested against.
     #[arg(long, value_enum, default_value_t = CandidatesArg::Auto)]
     candidates: CandidatesArg,
@@ -56,19 +48,6 @@ pub struct TraceArgs {
     /// Most rays (primary, reflected, refracted) broken down.
     #[arg(long, default_value_t = ExplainOptions::default().max_rays)]
     max_rays: usize,
-}
-
-/// The report forms of `grade`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum ReportFormat {
-    /// raytile's own JSON report.
-    Json,
-    /// Readable text.
-    Text,
-    /// Gradescope's `results.json`.
-    Gradescope,
-    /// PrairieLearn's results (under 1 MB, the difference image inline).
-    Prairielearn,
 }
 
 /// `raytile grade`.
@@ -83,8 +62,8 @@ pub struct GradeArgs {
     #[arg(long, value_enum)]
     format: Option<Hint>,
     /// The report's form.
-    #[arg(long, value_enum, default_value_t = ReportFormat::Json)]
-    report: ReportFormat,
+    #[arg(long, value_enum, default_value_t = ReportForm::Json)]
+    report: ReportForm,
     /// Write the report here instead of standard output.
     #[arg(short, long)]
     output: Option<PathBuf>,
@@ -159,11 +138,7 @@ pub fn trace(a: TraceArgs) -> anyhow::Result<ExitCode> {
         max_rays: a.max_rays,
     };
     let e = explain::explain(&r, u, v, &opts);
-    let out = match a.format {
-        TraceFormat::Text => explain::to_text(&e),
-        TraceFormat::Json => serde_json::to_string_pretty(&e)? + "\n",
-    };
-    std::io::stdout().write_all(out.as_bytes())?;
+    std::io::stdout().write_all(&write_explanation(&e, a.format)?)?;
     Ok(ExitCode::SUCCESS)
 }
 
@@ -228,22 +203,15 @@ pub fn grade(a: GradeArgs) -> anyhow::Result<ExitCode> {
         .install(|| grade::grade(&r, submission, &tol, &opts))
         .with_context(|| format!("{what}"))?;
     if let Some(p) = &a.diff {
-        std::fs::write(p, rep.diff_png())
+        std::fs::write(p, write_report(&rep, ReportForm::DiffPng, a.max_score)?)
             .with_context(|| format!("cannot write {}", p.display()))?;
     }
-    let text = match a.report {
-        ReportFormat::Json => serde_json::to_string_pretty(&rep)? + "\n",
-        ReportFormat::Text => report::to_text(&rep),
-        ReportFormat::Gradescope => {
-            serde_json::to_string_pretty(&report::to_gradescope(&rep, a.max_score))? + "\n"
-        }
-        ReportFormat::Prairielearn => serde_json::to_string(&report::to_prairielearn(&rep))? + "\n",
-    };
+    let bytes = write_report(&rep, a.report, a.max_score)?;
     match &a.output {
         Some(p) => {
-            std::fs::write(p, text).with_context(|| format!("cannot write {}", p.display()))?
+            std::fs::write(p, bytes).with_context(|| format!("cannot write {}", p.display()))?
         }
-        None => std::io::stdout().write_all(text.as_bytes())?,
+        None => std::io::stdout().write_all(&bytes)?,
     }
     Ok(if rep.pass {
         ExitCode::SUCCESS

@@ -12,10 +12,14 @@
 //!                                          └─► difference image (PNG)
 //! ```
 //!
+//! Each form of a report and of an explanation is written once, in [`answer`], for the
+//! command line and the server alike.
+//!
 //! Everything runs offline and in memory: the same calls serve the command line
 //! (`raytile grade`, `raytile trace`) and the HTTP handlers. A submission the grader
 //! cannot read is a [`GradeError`] saying what is wrong, never a panic.
 
+pub mod answer;
 pub mod compare;
 pub mod explain;
 pub mod image;

@@ -25,8 +25,9 @@
 //! the body's `tolerances`), `worst`, `inline_diff`, `flip`, `format` (the submission's
 //! form, overriding the part's), `report` (`json`, `text`, `gradescope`,
 //! `prairielearn`), `max_score`, and `output=diff` for the difference image as a PNG.
-//! The answers are byte for byte what `raytile grade` writes; `X-Raytile-Verdict` is
-//! `pass` or `fail`, so even the difference image carries the verdict.
+//! The answers are the bytes `raytile grade` writes, from the same function
+//! ([`crate::grade::answer::write_report`]); `X-Raytile-Verdict` is `pass` or `fail`, so
+//! even the difference image carries the verdict.
 //!
 //! As for renders, everything that can fail is decided before a render slot is taken:
 //! the query (400), `Accept` (406), the body's media type (415), its size (413: the
@@ -56,8 +57,8 @@ use super::extract::{
     parse_choice, parse_flag, parse_param, query_pairs, read_limited,
 };
 use super::job;
-use super::trace::TEXT_PLAIN_UTF8;
-use crate::grade::{self, GradeError, GradeOptions, Hint, Report, Submission, Tolerances, report};
+use crate::grade::answer::{ReportForm, write_report};
+use crate::grade::{self, GradeError, GradeOptions, Hint, Submission, Tolerances};
 use crate::render::Renderer;
 use crate::scene::{self, Scene};
 
@@ -80,39 +81,6 @@ pub const MAX_WORST: usize = 1000;
 /// `pass` or `fail`, on every graded answer.
 pub const X_RAYTILE_VERDICT: HeaderName = HeaderName::from_static("x-raytile-verdict");
 
-/// What the answer is: a report in one of its forms, or the difference image.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Answer {
-    /// raytile's JSON report (the default).
-    Json,
-    /// The report as readable text.
-    Text,
-    /// Gradescope's `results.json`.
-    Gradescope,
-    /// PrairieLearn's results.
-    PrairieLearn,
-    /// The difference image (`output=diff`).
-    Diff,
-}
-
-impl Answer {
-    /// The media type, without parameters (what `Accept` is matched against).
-    pub fn media_type(self) -> &'static str {
-        match self {
-            Answer::Json | Answer::Gradescope | Answer::PrairieLearn => "application/json",
-            Answer::Text => "text/plain",
-            Answer::Diff => "image/png",
-        }
-    }
-
-    fn content_type(self) -> &'static str {
-        match self {
-            Answer::Text => TEXT_PLAIN_UTF8,
-            other => other.media_type(),
-        }
-    }
-}
-
 /// The query string of `/v1/grade`; every field is optional.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct GradeQuery {
@@ -133,7 +101,7 @@ pub struct GradeQuery {
     /// Compute FLIP (default true).
     pub flip: Option<bool>,
     /// `report=json|text|gradescope|prairielearn`.
-    pub report: Option<Answer>,
+    pub report: Option<ReportForm>,
     /// `output=diff` (or `output=report`, the default).
     pub diff: Option<bool>,
     /// Points for a pass in the Gradescope report (default 1).
@@ -184,10 +152,10 @@ impl<S: Send + Sync> FromRequestParts<S> for GradeQuery {
                         k,
                         &v,
                         &[
-                            ("json", Answer::Json),
-                            ("text", Answer::Text),
-                            ("gradescope", Answer::Gradescope),
-                            ("prairielearn", Answer::PrairieLearn),
+                            ("json", ReportForm::Json),
+                            ("text", ReportForm::Text),
+                            ("gradescope", ReportForm::Gradescope),
+                            ("prairielearn", ReportForm::Prairielearn),
                         ],
                     )?;
                     once(&mut q.report, k, a)?;
@@ -240,15 +208,15 @@ impl GradeQuery {
 
     /// What to answer with, given `Accept`: `output` or `report` when given (and
     /// acceptable), else JSON or text as `Accept` prefers.
-    fn answer(&self, headers: &HeaderMap) -> Result<Answer, ApiError> {
+    fn answer(&self, headers: &HeaderMap) -> Result<ReportForm, ApiError> {
         let chosen = match (self.diff, self.report) {
-            (Some(true), _) => Answer::Diff,
+            (Some(true), _) => ReportForm::DiffPng,
             (_, Some(r)) => r,
             _ => {
                 return Ok(
                     match negotiate(headers, &["application/json", "text/plain"])? {
-                        "text/plain" => Answer::Text,
-                        _ => Answer::Json,
+                        "text/plain" => ReportForm::Text,
+                        _ => ReportForm::Json,
                     },
                 );
             }
@@ -546,29 +514,6 @@ fn write_failed(e: serde_json::Error) -> ApiError {
     ApiError::Internal(format!("cannot write the report: {e}"))
 }
 
-/// Indented JSON and a newline, as the command line prints it.
-fn pretty<T: serde::Serialize>(v: &T) -> Result<Vec<u8>, ApiError> {
-    let mut out = serde_json::to_vec_pretty(v).map_err(write_failed)?;
-    out.push(b'\n');
-    Ok(out)
-}
-
-/// The answer's bytes, exactly as `raytile grade` writes them.
-fn write(r: &Report, answer: Answer, max_score: f64) -> Result<Vec<u8>, ApiError> {
-    Ok(match answer {
-        Answer::Json => pretty(r)?,
-        Answer::Text => report::to_text(r).into_bytes(),
-        Answer::Gradescope => pretty(&report::to_gradescope(r, max_score))?,
-        Answer::PrairieLearn => {
-            // Compact: PrairieLearn's size limit was measured on this form.
-            let mut out = serde_json::to_vec(&report::to_prairielearn(r)).map_err(write_failed)?;
-            out.push(b'\n');
-            out
-        }
-        Answer::Diff => r.diff_png(),
-    })
-}
-
 /// `POST /v1/grade`.
 async fn grade(
     State(app): State<AppState>,
@@ -611,7 +556,8 @@ async fn grade(
         };
         let report = grade::grade(&r, submission, &tolerances, &opts)
             .map_err(|e| ApiError::grading(e, deadline_len))?;
-        Ok::<_, ApiError>((write(&report, answer, max_score)?, report.pass))
+        let bytes = write_report(&report, answer, max_score).map_err(write_failed)?;
+        Ok::<_, ApiError>((bytes, report.pass))
     })
     .await??;
     let verdict = HeaderValue::from_static(if pass { "pass" } else { "fail" });
