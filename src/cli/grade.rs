@@ -14,7 +14,7 @@ use anyhow::Context;
 use super::input::load_scene;
 use crate::grade::answer::{ExplanationForm, ReportForm, write_explanation, write_report};
 use crate::grade::explain::{self, Candidates, ExplainOptions};
-use crate::grade::{self, GradeOptions, Hint, Submission, Tolerances};
+use crate::grade::{self, GradeOptions, Hint, Submission, ToleranceOverrides, Tolerances};
 use crate::render::Renderer;
 
 /// Which objects `trace` lists for each ray.
@@ -80,21 +80,8 @@ pub struct GradeArgs {
     /// options below override it.
     #[arg(long)]
     tolerances: Option<PathBuf>,
-    /// Largest difference per colour channel, 0–255 (default 2).
-    #[arg(long, alias = "color-abs")]
-    colour_abs: Option<u8>,
-    /// Share of pixels that may fail, 0–1 (default 0.001).
-    #[arg(long)]
-    max_fail_share: Option<f64>,
-    /// Largest relative error of λ (default 1e-6).
-    #[arg(long)]
-    lambda_rel: Option<f64>,
-    /// Largest angle between normals, in degrees (default 0.1).
-    #[arg(long)]
-    normal_degrees: Option<f64>,
-    /// A pixel also passes when it matches a reference pixel of its 3 × 3 neighbourhood.
-    #[arg(long)]
-    edge_forgiving: bool,
+    #[command(flatten)]
+    overrides: ToleranceOverrides,
     /// Skip the FLIP metric (it is the slowest part on large images).
     #[arg(long)]
     no_flip: bool,
@@ -143,7 +130,7 @@ pub fn trace(a: TraceArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn tolerances(a: &GradeArgs) -> anyhow::Result<Tolerances> {
-    let mut t = match &a.tolerances {
+    let t = match &a.tolerances {
         Some(p) => {
             let bytes = std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?;
             serde_json::from_slice(&bytes)
@@ -151,19 +138,7 @@ fn tolerances(a: &GradeArgs) -> anyhow::Result<Tolerances> {
         }
         None => Tolerances::default(),
     };
-    if let Some(x) = a.colour_abs {
-        t.colour_abs = x;
-    }
-    if let Some(x) = a.max_fail_share {
-        t.max_fail_share = x;
-    }
-    if let Some(x) = a.lambda_rel {
-        t.lambda_rel = x;
-    }
-    if let Some(x) = a.normal_degrees {
-        t.normal_degrees = x;
-    }
-    t.edge_forgiving |= a.edge_forgiving;
+    let t = a.overrides.apply(t);
     t.check()?;
     Ok(t)
 }

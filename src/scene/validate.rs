@@ -14,6 +14,7 @@ use super::document::*;
 use super::problem::{Pointer, Problem, SceneError};
 use super::{Camera, Light, Limits, Material, Object, Scene};
 use crate::geometry::{MeshData, Shape, Transform};
+use crate::json::strip_position;
 
 /// At most this many problems are listed; the rest are counted.
 const MAX_PROBLEMS: usize = 100;
@@ -107,14 +108,6 @@ impl Problems {
             ));
         }
         self.list
-    }
-}
-
-/// serde_json's messages end in "at line 1 column 5"; we report the position separately.
-fn strip_position(msg: &str) -> String {
-    match msg.rfind(" at line ") {
-        Some(i) => msg[..i].to_string(),
-        None => msg.to_string(),
     }
 }
 
