@@ -10,6 +10,8 @@ pub mod config;
 pub mod geometry;
 /// Autograding: explain a pixel, grade a submission against the reference.
 pub mod grade;
+/// Reading JSON strictly, the failing field's path and the position apart.
+pub mod json;
 /// Sinks that stream PNG and hit data while tiles trace.
 pub mod output;
 /// The camera, Whitted shading and the tile loop.

@@ -38,7 +38,7 @@ use tokio::task::JoinSet;
 use tokio::time::Instant;
 
 use super::TraceOptions;
-use super::local::{checked_region, read_input, scene_error};
+use super::input::{read_input, scene_error};
 use crate::output::PngSink;
 use crate::render::{Rect, Tile, TileSink};
 use crate::scene::{self, Limits};
@@ -344,7 +344,7 @@ pub fn render(
     let t0 = std::time::Instant::now();
     let bytes = read_input(&opts.scene)?;
     let scene = scene::parse(&bytes, &Limits::NONE).map_err(|e| scene_error(&opts.scene, e))?;
-    let region = checked_region(opts, &scene)?;
+    let region = opts.region_in(&scene)?;
     let servers = remote
         .servers
         .iter()
@@ -456,10 +456,6 @@ fn note(bar: Option<&ProgressBar>, line: String) {
     }
 }
 
-fn region_text(r: Rect) -> String {
-    format!("{},{},{},{}", r.x, r.y, r.width, r.height)
-}
-
 /// Renders every band on the servers into `ctx.sink`: the scheduler of the module doc.
 async fn run_bands(
     ctx: &Remote,
@@ -523,7 +519,7 @@ async fn run_bands(
         job.failed_on[s] = true;
         job.tried.push(s);
         job.last = format!("{}: {failure}", servers[s]);
-        let band = region_text(job.rect);
+        let band = job.rect.to_string();
         let pause = match policy.verdict(&failure, slot.failures_in_a_row) {
             Verdict::Stop if matches!(failure, Failure::Local(_)) => {
                 bail!("cannot write region {band}: {failure}")
@@ -568,7 +564,7 @@ async fn run_bands(
 async fn fetch_band(ctx: &Remote, url: &str, rect: Rect) -> Result<(), Failure> {
     let mut res = ctx
         .client
-        .post(format!("{url}/v1/render?region={}", region_text(rect)))
+        .post(format!("{url}/v1/render?region={rect}"))
         .header(CONTENT_TYPE, "application/json")
         .header(ACCEPT, "image/png")
         .body(ctx.scene.clone())

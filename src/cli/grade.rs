@@ -11,19 +11,11 @@ use std::sync::Arc;
 
 use anyhow::Context;
 
-use super::local::load_scene;
+use super::input::load_scene;
+use crate::grade::answer::{ExplanationForm, ReportForm, write_explanation, write_report};
 use crate::grade::explain::{self, Candidates, ExplainOptions};
-use crate::grade::{self, GradeOptions, Hint, Submission, Tolerances, report};
+use crate::grade::{self, GradeOptions, Hint, Submission, ToleranceOverrides, Tolerances};
 use crate::render::Renderer;
-
-/// How `trace` prints.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum TraceFormat {
-    /// Laid out like the lecture's worked example.
-    Text,
-    /// The explanation as JSON.
-    Json,
-}
 
 /// Which objects `trace` lists for each ray.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -45,8 +37,8 @@ pub struct TraceArgs {
     #[arg(long, value_parser = parse_pixel)]
     pixel: (u32, u32),
     /// Output format.
-    #[arg(long, value_enum, default_value_t = TraceFormat::Text)]
-    format: TraceFormat,
+    #[arg(long, value_enum, default_value_t = ExplanationForm::Text)]
+    format: ExplanationForm,
     /// Which objects each ray is shown tested against.
     #[arg(long, value_enum, default_value_t = CandidatesArg::Auto)]
     candidates: CandidatesArg,
@@ -56,19 +48,6 @@ pub struct TraceArgs {
     /// Most rays (primary, reflected, refracted) broken down.
     #[arg(long, default_value_t = ExplainOptions::default().max_rays)]
     max_rays: usize,
-}
-
-/// The report forms of `grade`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum ReportFormat {
-    /// raytile's own JSON report.
-    Json,
-    /// Readable text.
-    Text,
-    /// Gradescope's `results.json`.
-    Gradescope,
-    /// PrairieLearn's results (under 1 MB, the difference image inline).
-    Prairielearn,
 }
 
 /// `raytile grade`.
@@ -83,8 +62,8 @@ pub struct GradeArgs {
     #[arg(long, value_enum)]
     format: Option<Hint>,
     /// The report's form.
-    #[arg(long, value_enum, default_value_t = ReportFormat::Json)]
-    report: ReportFormat,
+    #[arg(long, value_enum, default_value_t = ReportForm::Json)]
+    report: ReportForm,
     /// Write the report here instead of standard output.
     #[arg(short, long)]
     output: Option<PathBuf>,
@@ -101,21 +80,8 @@ pub struct GradeArgs {
     /// options below override it.
     #[arg(long)]
     tolerances: Option<PathBuf>,
-    /// Largest difference per colour channel, 0–255 (default 2).
-    #[arg(long, alias = "color-abs")]
-    colour_abs: Option<u8>,
-    /// Share of pixels that may fail, 0–1 (default 0.001).
-    #[arg(long)]
-    max_fail_share: Option<f64>,
-    /// Largest relative error of λ (default 1e-6).
-    #[arg(long)]
-    lambda_rel: Option<f64>,
-    /// Largest angle between normals, in degrees (default 0.1).
-    #[arg(long)]
-    normal_degrees: Option<f64>,
-    /// A pixel also passes when it matches a reference pixel of its 3 × 3 neighbourhood.
-    #[arg(long)]
-    edge_forgiving: bool,
+    #[command(flatten)]
+    overrides: ToleranceOverrides,
     /// Skip the FLIP metric (it is the slowest part on large images).
     #[arg(long)]
     no_flip: bool,
@@ -159,16 +125,12 @@ pub fn trace(a: TraceArgs) -> anyhow::Result<ExitCode> {
         max_rays: a.max_rays,
     };
     let e = explain::explain(&r, u, v, &opts);
-    let out = match a.format {
-        TraceFormat::Text => explain::to_text(&e),
-        TraceFormat::Json => serde_json::to_string_pretty(&e)? + "\n",
-    };
-    std::io::stdout().write_all(out.as_bytes())?;
+    std::io::stdout().write_all(&write_explanation(&e, a.format)?)?;
     Ok(ExitCode::SUCCESS)
 }
 
 fn tolerances(a: &GradeArgs) -> anyhow::Result<Tolerances> {
-    let mut t = match &a.tolerances {
+    let t = match &a.tolerances {
         Some(p) => {
             let bytes = std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?;
             serde_json::from_slice(&bytes)
@@ -176,19 +138,7 @@ fn tolerances(a: &GradeArgs) -> anyhow::Result<Tolerances> {
         }
         None => Tolerances::default(),
     };
-    if let Some(x) = a.colour_abs {
-        t.colour_abs = x;
-    }
-    if let Some(x) = a.max_fail_share {
-        t.max_fail_share = x;
-    }
-    if let Some(x) = a.lambda_rel {
-        t.lambda_rel = x;
-    }
-    if let Some(x) = a.normal_degrees {
-        t.normal_degrees = x;
-    }
-    t.edge_forgiving |= a.edge_forgiving;
+    let t = a.overrides.apply(t);
     t.check()?;
     Ok(t)
 }
@@ -228,22 +178,15 @@ pub fn grade(a: GradeArgs) -> anyhow::Result<ExitCode> {
         .install(|| grade::grade(&r, submission, &tol, &opts))
         .with_context(|| format!("{what}"))?;
     if let Some(p) = &a.diff {
-        std::fs::write(p, rep.diff_png())
+        std::fs::write(p, write_report(&rep, ReportForm::DiffPng, a.max_score)?)
             .with_context(|| format!("cannot write {}", p.display()))?;
     }
-    let text = match a.report {
-        ReportFormat::Json => serde_json::to_string_pretty(&rep)? + "\n",
-        ReportFormat::Text => report::to_text(&rep),
-        ReportFormat::Gradescope => {
-            serde_json::to_string_pretty(&report::to_gradescope(&rep, a.max_score))? + "\n"
-        }
-        ReportFormat::Prairielearn => serde_json::to_string(&report::to_prairielearn(&rep))? + "\n",
-    };
+    let bytes = write_report(&rep, a.report, a.max_score)?;
     match &a.output {
         Some(p) => {
-            std::fs::write(p, text).with_context(|| format!("cannot write {}", p.display()))?
+            std::fs::write(p, bytes).with_context(|| format!("cannot write {}", p.display()))?
         }
-        None => std::io::stdout().write_all(text.as_bytes())?,
+        None => std::io::stdout().write_all(&bytes)?,
     }
     Ok(if rep.pass {
         ExitCode::SUCCESS

@@ -2,22 +2,23 @@
 //! with a progress bar on a terminal and `--stats` phase timings.
 
 use std::fs::File;
-use std::io::{IsTerminal, Read};
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::TraceOptions;
+use super::input::{load_scene, read_input};
 use crate::output::{HitFormat, HitSink, PngSink};
 use crate::render::{
     self, ColourKernel, HitKernel, Kernel, Rect, Renderer, SinkClosed, Tile, TileSink,
 };
-use crate::scene::{self, Limits, Scene, SceneError};
+use crate::scene::{self, Limits, SceneError};
 
 /// `raytile render`.
 #[derive(Debug, clap::Args)]
@@ -52,40 +53,6 @@ pub struct ValidateArgs {
     /// Print the normalised scene (every default explicit) when it is valid.
     #[arg(long)]
     normalised: bool,
-}
-
-/// Reads a scene file (or standard input) and validates it, without limits.
-pub fn load_scene(path: &Path) -> anyhow::Result<Scene> {
-    let bytes = read_input(path)?;
-    scene::parse(&bytes, &Limits::NONE).map_err(|e| scene_error(path, e))
-}
-
-/// The bytes of a scene file, or of standard input for `-`.
-pub(super) fn read_input(path: &Path) -> anyhow::Result<Vec<u8>> {
-    if path == Path::new("-") {
-        let mut b = Vec::new();
-        std::io::stdin()
-            .read_to_end(&mut b)
-            .context("cannot read the scene from standard input")?;
-        Ok(b)
-    } else {
-        std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))
-    }
-}
-
-/// A scene error as the command line reports it, naming the file.
-pub(super) fn scene_error(path: &Path, e: SceneError) -> anyhow::Error {
-    match &e {
-        SceneError::Syntax { .. } => anyhow::anyhow!("{}: {e}", path.display()),
-        SceneError::Invalid(problems) => {
-            let list: Vec<String> = problems.iter().map(|p| format!("  {p}")).collect();
-            anyhow::anyhow!(
-                "{}: the scene is invalid:\n{}",
-                path.display(),
-                list.join("\n")
-            )
-        }
-    }
 }
 
 /// `raytile validate`.
@@ -198,7 +165,7 @@ fn run_traced(
     let t0 = Instant::now();
     let scene = Arc::new(load_scene(&opts.scene)?);
     let parse_s = t0.elapsed();
-    let region = checked_region(opts, &scene)?;
+    let region = opts.region_in(&scene)?;
     let pool = {
         let mut b = rayon::ThreadPoolBuilder::new();
         if let Some(n) = opts.threads {
@@ -253,24 +220,6 @@ fn run_traced(
         eprintln!("{line}");
     }
     Ok(ExitCode::SUCCESS)
-}
-
-/// `--region`, or the whole frame; an error when the region leaves the frame.
-pub(super) fn checked_region(opts: &TraceOptions, scene: &Scene) -> anyhow::Result<Rect> {
-    let frame = Rect::frame(scene.width, scene.height);
-    let region = opts.region.unwrap_or(frame);
-    if !region.within(&frame) {
-        bail!(
-            "the region {},{},{},{} does not lie within the {} × {} frame",
-            region.x,
-            region.y,
-            region.width,
-            region.height,
-            frame.width,
-            frame.height
-        );
-    }
-    Ok(region)
 }
 
 /// Runs the tile loop with a progress bar (on a terminal) and sink timing around `sink`.

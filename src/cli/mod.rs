@@ -5,6 +5,7 @@
 
 pub mod distributed;
 mod grade;
+mod input;
 mod local;
 mod serve;
 
@@ -12,7 +13,8 @@ use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
 
-use crate::render::Rect;
+use crate::render::{OutsideFrame, Rect, region_in_frame};
+use crate::scene::Scene;
 
 /// raytile: ray trace JSON scenes, from the command line or as an HTTP service.
 #[derive(Debug, Parser)]
@@ -54,33 +56,18 @@ pub struct TraceOptions {
     #[arg(long, default_value_t = crate::render::DEFAULT_TILE_PX, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub tile: u32,
     /// Only this rectangle of the frame: `x,y,w,h` in pixels.
-    #[arg(long, value_parser = parse_region)]
+    #[arg(long)]
     pub region: Option<Rect>,
     /// Print one JSON line of phase timings to standard error.
     #[arg(long)]
     pub stats: bool,
 }
 
-/// Parses `x,y,w,h`.
-pub fn parse_region(s: &str) -> Result<Rect, String> {
-    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
-    let [x, y, w, h] = parts.as_slice() else {
-        return Err(format!("expected x,y,w,h (four whole numbers), got `{s}`"));
-    };
-    let n = |t: &str| {
-        t.parse::<u32>()
-            .map_err(|_| format!("`{t}` is not a whole number ≥ 0"))
-    };
-    let r = Rect {
-        x: n(x)?,
-        y: n(y)?,
-        width: n(w)?,
-        height: n(h)?,
-    };
-    if r.width == 0 || r.height == 0 {
-        return Err("the region's width and height must be at least 1".into());
+impl TraceOptions {
+    /// `--region` within the scene's frame, or the whole frame without one.
+    fn region_in(&self, scene: &Scene) -> Result<Rect, OutsideFrame> {
+        region_in_frame(self.region, scene.width, scene.height)
     }
-    Ok(r)
 }
 
 /// Runs the command line; the exit code on success.

@@ -12,10 +12,14 @@
 //!                                          └─► difference image (PNG)
 //! ```
 //!
+//! Each form of a report and of an explanation is written once, in [`answer`], for the
+//! command line and the server alike.
+//!
 //! Everything runs offline and in memory: the same calls serve the command line
 //! (`raytile grade`, `raytile trace`) and the HTTP handlers. A submission the grader
 //! cannot read is a [`GradeError`] saying what is wrong, never a panic.
 
+pub mod answer;
 pub mod compare;
 pub mod explain;
 pub mod image;
@@ -87,6 +91,43 @@ impl Tolerances {
             return bad("normal_degrees", "must be between 0 and 180");
         }
         Ok(())
+    }
+}
+
+/// Tolerances set one by one over others (the defaults, a file, a request's document):
+/// the command line's `--colour-abs`, `--max-fail-share`, `--lambda-rel`,
+/// `--normal-degrees` and `--edge-forgiving`, and the query parameters of the same
+/// names on `POST /v1/grade`. Each field left `None` keeps the value beneath.
+#[derive(Debug, Clone, Copy, Default, PartialEq, clap::Args)]
+pub struct ToleranceOverrides {
+    /// Largest difference per colour channel, 0–255 (default 2).
+    #[arg(long, alias = "color-abs")]
+    pub colour_abs: Option<u8>,
+    /// Share of pixels that may fail, 0–1 (default 0.001).
+    #[arg(long)]
+    pub max_fail_share: Option<f64>,
+    /// Largest relative error of λ (default 1e-6).
+    #[arg(long)]
+    pub lambda_rel: Option<f64>,
+    /// Largest angle between normals, in degrees (default 0.1).
+    #[arg(long)]
+    pub normal_degrees: Option<f64>,
+    /// A pixel also passes when it matches a reference pixel of its 3 × 3 neighbourhood.
+    // On the command line a bare flag: present sets it, absent leaves the value beneath.
+    #[arg(long, num_args = 0, default_missing_value = "true")]
+    pub edge_forgiving: Option<bool>,
+}
+
+impl ToleranceOverrides {
+    /// `base` with the tolerances these set.
+    pub fn apply(&self, base: Tolerances) -> Tolerances {
+        Tolerances {
+            colour_abs: self.colour_abs.unwrap_or(base.colour_abs),
+            max_fail_share: self.max_fail_share.unwrap_or(base.max_fail_share),
+            lambda_rel: self.lambda_rel.unwrap_or(base.lambda_rel),
+            normal_degrees: self.normal_degrees.unwrap_or(base.normal_degrees),
+            edge_forgiving: self.edge_forgiving.unwrap_or(base.edge_forgiving),
+        }
     }
 }
 
@@ -411,6 +452,29 @@ mod tests {
             ..Default::default()
         };
         assert!(t.check().is_err());
+    }
+
+    #[test]
+    fn overrides_set_only_what_they_name() {
+        let base = Tolerances {
+            colour_abs: 7,
+            edge_forgiving: true,
+            ..Default::default()
+        };
+        assert_eq!(ToleranceOverrides::default().apply(base.clone()), base);
+        let o = ToleranceOverrides {
+            max_fail_share: Some(0.5),
+            edge_forgiving: Some(false),
+            ..Default::default()
+        };
+        assert_eq!(
+            o.apply(base.clone()),
+            Tolerances {
+                max_fail_share: 0.5,
+                edge_forgiving: false,
+                ..base
+            }
+        );
     }
 
     fn data(pixels: Vec<SubmittedHit>, rect: Option<Rect>) -> HitData {

@@ -3,6 +3,7 @@
 //! what a pixel reports: a colour ([`ColourKernel`]) or its first hit ([`HitKernel`]).
 
 pub mod camera;
+pub mod rect;
 pub mod shade;
 pub mod tiles;
 
@@ -13,9 +14,10 @@ use glam::DVec3;
 use crate::geometry::{Surface, World, ray::PRIMARY_LAMBDA_MIN};
 use crate::scene::Scene;
 pub use camera::PrimaryRays;
+pub use rect::{OutsideFrame, ParseRectError, Rect, region_in_frame};
 pub use shade::{RayCount, Shader, quantise};
 pub use tiles::{
-    Cancel, DEFAULT_TILE_PX, Kernel, Rect, RenderStats, SinkClosed, Stopped, Tile, TileSink, run,
+    Cancel, DEFAULT_TILE_PX, Kernel, RenderStats, SinkClosed, Stopped, Tile, TileSink, run,
 };
 
 /// A scene prepared for tracing: its acceleration structure and camera.

@@ -11,69 +11,10 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
+use super::Rect;
+
 /// Default tile edge in pixels.
 pub const DEFAULT_TILE_PX: u32 = 32;
-
-/// A rectangle of pixels in full-frame coordinates.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub struct Rect {
-    /// Left column.
-    pub x: u32,
-    /// Top row.
-    pub y: u32,
-    /// Width.
-    pub width: u32,
-    /// Height.
-    pub height: u32,
-}
-
-impl Rect {
-    /// The whole `width × height` frame.
-    pub fn frame(width: u32, height: u32) -> Rect {
-        Rect {
-            x: 0,
-            y: 0,
-            width,
-            height,
-        }
-    }
-
-    /// Number of pixels.
-    pub fn pixels(&self) -> u64 {
-        self.width as u64 * self.height as u64
-    }
-
-    /// Whether `self` lies within `outer`.
-    pub fn within(&self, outer: &Rect) -> bool {
-        self.x >= outer.x
-            && self.y >= outer.y
-            && self.x as u64 + self.width as u64 <= outer.x as u64 + outer.width as u64
-            && self.y as u64 + self.height as u64 <= outer.y as u64 + outer.height as u64
-    }
-
-    /// The tiles of this rectangle, row-major, each at most `tile_px` square.
-    pub fn tiles(&self, tile_px: u32) -> Vec<Rect> {
-        let t = tile_px.max(1);
-        let mut out = Vec::new();
-        let mut y = 0;
-        while y < self.height {
-            let h = t.min(self.height - y);
-            let mut x = 0;
-            while x < self.width {
-                let w = t.min(self.width - x);
-                out.push(Rect {
-                    x: self.x + x,
-                    y: self.y + y,
-                    width: w,
-                    height: h,
-                });
-                x += w;
-            }
-            y += h;
-        }
-        out
-    }
-}
 
 /// A finished tile: its rectangle and its pixels, row-major.
 #[derive(Debug, Clone, PartialEq)]

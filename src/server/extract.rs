@@ -23,7 +23,7 @@ use axum::http::{HeaderMap, Uri, header};
 
 use super::AppState;
 use super::error::ApiError;
-use crate::render::Rect;
+use crate::render::{Rect, region_in_frame};
 use crate::scene::{self, Scene};
 
 /// The request's id and when it arrived.
@@ -66,7 +66,7 @@ impl<S: Send + Sync> FromRequestParts<S> for RegionQuery {
         for (k, v) in query_pairs(&parts.uri)? {
             match k.as_str() {
                 "region" if q.region.is_none() => {
-                    q.region = Some(crate::cli::parse_region(&v).map_err(|e| {
+                    q.region = Some(v.parse::<Rect>().map_err(|e| {
                         ApiError::BadRequest(format!("query parameter `region`: {e}"))
                     })?);
                 }
@@ -155,15 +155,8 @@ pub fn parse_choice<T: Copy>(
 impl RegionQuery {
     /// The region within `scene`'s frame (the whole frame by default).
     pub fn within(&self, scene: &Scene) -> Result<Rect, ApiError> {
-        let frame = Rect::frame(scene.width, scene.height);
-        match self.region {
-            None => Ok(frame),
-            Some(r) if r.within(&frame) => Ok(r),
-            Some(r) => Err(ApiError::BadRequest(format!(
-                "the region {},{},{},{} does not lie within the {} × {} frame",
-                r.x, r.y, r.width, r.height, frame.width, frame.height
-            ))),
-        }
+        region_in_frame(self.region, scene.width, scene.height)
+            .map_err(|e| ApiError::BadRequest(e.to_string()))
     }
 }
 

@@ -25,8 +25,9 @@
 //! the body's `tolerances`), `worst`, `inline_diff`, `flip`, `format` (the submission's
 //! form, overriding the part's), `report` (`json`, `text`, `gradescope`,
 //! `prairielearn`), `max_score`, and `output=diff` for the difference image as a PNG.
-//! The answers are byte for byte what `raytile grade` writes; `X-Raytile-Verdict` is
-//! `pass` or `fail`, so even the difference image carries the verdict.
+//! The answers are the bytes `raytile grade` writes, from the same function
+//! ([`crate::grade::answer::write_report`]); `X-Raytile-Verdict` is `pass` or `fail`, so
+//! even the difference image carries the verdict.
 //!
 //! As for renders, everything that can fail is decided before a render slot is taken:
 //! the query (400), `Accept` (406), the body's media type (415), its size (413: the
@@ -56,8 +57,11 @@ use super::extract::{
     parse_choice, parse_flag, parse_param, query_pairs, read_limited,
 };
 use super::job;
-use super::trace::TEXT_PLAIN_UTF8;
-use crate::grade::{self, GradeError, GradeOptions, Hint, Report, Submission, Tolerances, report};
+use crate::grade::answer::{ReportForm, write_report};
+use crate::grade::{
+    self, GradeError, GradeOptions, Hint, Submission, ToleranceOverrides, Tolerances,
+};
+use crate::json;
 use crate::render::Renderer;
 use crate::scene::{self, Scene};
 
@@ -80,52 +84,12 @@ pub const MAX_WORST: usize = 1000;
 /// `pass` or `fail`, on every graded answer.
 pub const X_RAYTILE_VERDICT: HeaderName = HeaderName::from_static("x-raytile-verdict");
 
-/// What the answer is: a report in one of its forms, or the difference image.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Answer {
-    /// raytile's JSON report (the default).
-    Json,
-    /// The report as readable text.
-    Text,
-    /// Gradescope's `results.json`.
-    Gradescope,
-    /// PrairieLearn's results.
-    PrairieLearn,
-    /// The difference image (`output=diff`).
-    Diff,
-}
-
-impl Answer {
-    /// The media type, without parameters (what `Accept` is matched against).
-    pub fn media_type(self) -> &'static str {
-        match self {
-            Answer::Json | Answer::Gradescope | Answer::PrairieLearn => "application/json",
-            Answer::Text => "text/plain",
-            Answer::Diff => "image/png",
-        }
-    }
-
-    fn content_type(self) -> &'static str {
-        match self {
-            Answer::Text => TEXT_PLAIN_UTF8,
-            other => other.media_type(),
-        }
-    }
-}
-
 /// The query string of `/v1/grade`; every field is optional.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct GradeQuery {
-    /// Overrides `tolerances.colour_abs` (`color_abs` too).
-    pub colour_abs: Option<u8>,
-    /// Overrides `tolerances.max_fail_share`.
-    pub max_fail_share: Option<f64>,
-    /// Overrides `tolerances.lambda_rel`.
-    pub lambda_rel: Option<f64>,
-    /// Overrides `tolerances.normal_degrees`.
-    pub normal_degrees: Option<f64>,
-    /// Overrides `tolerances.edge_forgiving`.
-    pub edge_forgiving: Option<bool>,
+    /// `colour_abs` (`color_abs` too), `max_fail_share`, `lambda_rel`, `normal_degrees`
+    /// and `edge_forgiving`, over the body's `tolerances`.
+    pub tolerances: ToleranceOverrides,
     /// How many of the worst pixels to list (default 10, at most [`MAX_WORST`]).
     pub worst: Option<usize>,
     /// Put the difference image in the JSON report.
@@ -133,7 +97,7 @@ pub struct GradeQuery {
     /// Compute FLIP (default true).
     pub flip: Option<bool>,
     /// `report=json|text|gradescope|prairielearn`.
-    pub report: Option<Answer>,
+    pub report: Option<ReportForm>,
     /// `output=diff` (or `output=report`, the default).
     pub diff: Option<bool>,
     /// Points for a pass in the Gradescope report (default 1).
@@ -153,12 +117,20 @@ impl<S: Send + Sync> FromRequestParts<S> for GradeQuery {
             match k {
                 "colour_abs" | "color_abs" => {
                     let x = parse_param(k, &v, "a whole number from 0 to 255")?;
-                    once(&mut q.colour_abs, "colour_abs", x)?;
+                    once(&mut q.tolerances.colour_abs, "colour_abs", x)?;
                 }
-                "max_fail_share" => once(&mut q.max_fail_share, k, parse_param(k, &v, number)?)?,
-                "lambda_rel" => once(&mut q.lambda_rel, k, parse_param(k, &v, number)?)?,
-                "normal_degrees" => once(&mut q.normal_degrees, k, parse_param(k, &v, number)?)?,
-                "edge_forgiving" => once(&mut q.edge_forgiving, k, parse_flag(k, &v)?)?,
+                "max_fail_share" => once(
+                    &mut q.tolerances.max_fail_share,
+                    k,
+                    parse_param(k, &v, number)?,
+                )?,
+                "lambda_rel" => once(&mut q.tolerances.lambda_rel, k, parse_param(k, &v, number)?)?,
+                "normal_degrees" => once(
+                    &mut q.tolerances.normal_degrees,
+                    k,
+                    parse_param(k, &v, number)?,
+                )?,
+                "edge_forgiving" => once(&mut q.tolerances.edge_forgiving, k, parse_flag(k, &v)?)?,
                 "inline_diff" => once(&mut q.inline_diff, k, parse_flag(k, &v)?)?,
                 "flip" => once(&mut q.flip, k, parse_flag(k, &v)?)?,
                 "worst" => {
@@ -184,10 +156,10 @@ impl<S: Send + Sync> FromRequestParts<S> for GradeQuery {
                         k,
                         &v,
                         &[
-                            ("json", Answer::Json),
-                            ("text", Answer::Text),
-                            ("gradescope", Answer::Gradescope),
-                            ("prairielearn", Answer::PrairieLearn),
+                            ("json", ReportForm::Json),
+                            ("text", ReportForm::Text),
+                            ("gradescope", ReportForm::Gradescope),
+                            ("prairielearn", ReportForm::Prairielearn),
                         ],
                     )?;
                     once(&mut q.report, k, a)?;
@@ -227,28 +199,17 @@ impl<S: Send + Sync> FromRequestParts<S> for GradeQuery {
 }
 
 impl GradeQuery {
-    /// `base` with the tolerances this query sets.
-    pub fn tolerances(&self, base: Tolerances) -> Tolerances {
-        Tolerances {
-            colour_abs: self.colour_abs.unwrap_or(base.colour_abs),
-            max_fail_share: self.max_fail_share.unwrap_or(base.max_fail_share),
-            lambda_rel: self.lambda_rel.unwrap_or(base.lambda_rel),
-            normal_degrees: self.normal_degrees.unwrap_or(base.normal_degrees),
-            edge_forgiving: self.edge_forgiving.unwrap_or(base.edge_forgiving),
-        }
-    }
-
     /// What to answer with, given `Accept`: `output` or `report` when given (and
     /// acceptable), else JSON or text as `Accept` prefers.
-    fn answer(&self, headers: &HeaderMap) -> Result<Answer, ApiError> {
+    fn answer(&self, headers: &HeaderMap) -> Result<ReportForm, ApiError> {
         let chosen = match (self.diff, self.report) {
-            (Some(true), _) => Answer::Diff,
+            (Some(true), _) => ReportForm::DiffPng,
             (_, Some(r)) => r,
             _ => {
                 return Ok(
                     match negotiate(headers, &["application/json", "text/plain"])? {
-                        "text/plain" => Answer::Text,
-                        _ => Answer::Json,
+                        "text/plain" => ReportForm::Text,
+                        _ => ReportForm::Json,
                     },
                 );
             }
@@ -407,17 +368,17 @@ fn prepare(
             tolerances,
         } => {
             let tolerances = match tolerances {
-                Some(b) => Some(tolerances_part(&b)?),
+                Some(b) => Some(strict::<Tolerances>(&b, "the `tolerances` part")?),
                 None => None,
             };
             (Sent::Form(scene, submission, hint), tolerances)
         }
         GradeBody::Json(bytes) => {
-            let env = envelope(&bytes)?;
+            let env: Envelope = strict(&bytes, "the body")?;
             (Sent::Json(env.scene, env.submission), env.tolerances)
         }
     };
-    let tolerances = query.tolerances(tolerances.unwrap_or_default());
+    let tolerances = query.tolerances.apply(tolerances.unwrap_or_default());
     tolerances
         .check()
         .map_err(|e| ApiError::BadRequest(e.to_string()))?;
@@ -445,49 +406,24 @@ fn prepare(
     })
 }
 
-/// A JSON error of `what`: bad syntax is 400 `invalid-json` with where; a document of
-/// the wrong shape is 400 `bad-request` naming the field (`path`).
-fn json_error(e: serde_json::Error, what: &'static str, path: &str) -> ApiError {
-    let message = e.to_string();
-    // serde_json appends the position; the problem carries it as members.
-    let message = message
-        .rsplit_once(" at line ")
-        .map_or(message.as_str(), |(m, _)| m)
-        .to_owned();
-    if e.is_syntax() || e.is_eof() {
-        ApiError::InvalidJson {
-            what,
-            message,
-            line: e.line(),
-            column: e.column(),
+/// `what` (the body, a part) read strictly as one `T`. Bad syntax is 400 `invalid-json`
+/// with where; a document of the wrong shape is 400 `bad-request` naming the field.
+fn strict<T: serde::de::DeserializeOwned>(bytes: &[u8], what: &'static str) -> Result<T, ApiError> {
+    json::from_slice(bytes).map_err(|f| {
+        let message = f.message();
+        if f.error.is_syntax() || f.error.is_eof() {
+            ApiError::InvalidJson {
+                what,
+                message,
+                line: f.error.line(),
+                column: f.error.column(),
+            }
+        } else if let Some(path) = &f.path {
+            ApiError::BadRequest(format!("{what}: `{path}`: {message}"))
+        } else {
+            ApiError::BadRequest(format!("{what}: {message}"))
         }
-    } else if path.is_empty() || path == "." {
-        ApiError::BadRequest(format!("{what}: {message}"))
-    } else {
-        ApiError::BadRequest(format!("{what}: `{path}`: {message}"))
-    }
-}
-
-fn envelope(bytes: &[u8]) -> Result<Envelope, ApiError> {
-    let what = "the body";
-    let mut de = serde_json::Deserializer::from_slice(bytes);
-    let env = serde_path_to_error::deserialize::<_, Envelope>(&mut de).map_err(|e| {
-        let path = e.path().to_string();
-        json_error(e.into_inner(), what, &path)
-    })?;
-    de.end().map_err(|e| json_error(e, what, ""))?;
-    Ok(env)
-}
-
-fn tolerances_part(bytes: &[u8]) -> Result<Tolerances, ApiError> {
-    let what = "the `tolerances` part";
-    let mut de = serde_json::Deserializer::from_slice(bytes);
-    let t = serde_path_to_error::deserialize::<_, Tolerances>(&mut de).map_err(|e| {
-        let path = e.path().to_string();
-        json_error(e.into_inner(), what, &path)
-    })?;
-    de.end().map_err(|e| json_error(e, what, ""))?;
-    Ok(t)
+    })
 }
 
 /// The members that carry a submission file inside the JSON form, and its form.
@@ -546,29 +482,6 @@ fn write_failed(e: serde_json::Error) -> ApiError {
     ApiError::Internal(format!("cannot write the report: {e}"))
 }
 
-/// Indented JSON and a newline, as the command line prints it.
-fn pretty<T: serde::Serialize>(v: &T) -> Result<Vec<u8>, ApiError> {
-    let mut out = serde_json::to_vec_pretty(v).map_err(write_failed)?;
-    out.push(b'\n');
-    Ok(out)
-}
-
-/// The answer's bytes, exactly as `raytile grade` writes them.
-fn write(r: &Report, answer: Answer, max_score: f64) -> Result<Vec<u8>, ApiError> {
-    Ok(match answer {
-        Answer::Json => pretty(r)?,
-        Answer::Text => report::to_text(r).into_bytes(),
-        Answer::Gradescope => pretty(&report::to_gradescope(r, max_score))?,
-        Answer::PrairieLearn => {
-            // Compact: PrairieLearn's size limit was measured on this form.
-            let mut out = serde_json::to_vec(&report::to_prairielearn(r)).map_err(write_failed)?;
-            out.push(b'\n');
-            out
-        }
-        Answer::Diff => r.diff_png(),
-    })
-}
-
 /// `POST /v1/grade`.
 async fn grade(
     State(app): State<AppState>,
@@ -611,7 +524,8 @@ async fn grade(
         };
         let report = grade::grade(&r, submission, &tolerances, &opts)
             .map_err(|e| ApiError::grading(e, deadline_len))?;
-        Ok::<_, ApiError>((write(&report, answer, max_score)?, report.pass))
+        let bytes = write_report(&report, answer, max_score).map_err(write_failed)?;
+        Ok::<_, ApiError>((bytes, report.pass))
     })
     .await??;
     let verdict = HeaderValue::from_static(if pass { "pass" } else { "fail" });

@@ -184,10 +184,7 @@ async fn start(
     );
     h.insert(X_RAYTILE_WIDTH, HeaderValue::from(region.width));
     h.insert(X_RAYTILE_HEIGHT, HeaderValue::from(region.height));
-    if let Ok(v) = HeaderValue::from_str(&format!(
-        "{},{},{},{}",
-        region.x, region.y, region.width, region.height
-    )) {
+    if let Ok(v) = HeaderValue::from_str(&region.to_string()) {
         h.insert(X_RAYTILE_REGION, v);
     }
     if let Ok(v) = HeaderValue::from_str(&format!(

@@ -15,7 +15,9 @@
 //! Everything that can fail is decided before a render slot is taken: the query (400),
 //! the scene (415, 413, 400, 422, as for `/v1/render`), a pixel outside the image (422,
 //! `pixel-outside-image`). Then building the BVH and explaining, CPU work, run on the
-//! rayon pool under the same admission as renders ([`super::job`]).
+//! rayon pool under the same admission as renders ([`super::job`]). The answer is the
+//! bytes `raytile trace` prints, from the same function
+//! ([`crate::grade::answer::write_explanation`]).
 
 use axum::Router;
 use axum::extract::{FromRequestParts, State};
@@ -30,6 +32,7 @@ use super::extract::{
     RequestInfo, SceneBody, negotiate, once, parse_choice, parse_param, query_pairs,
 };
 use super::job;
+use crate::grade::answer::{ExplanationForm, write_explanation};
 use crate::grade::explain::{self, Candidates, ExplainError, ExplainOptions};
 use crate::render::Renderer;
 
@@ -41,9 +44,6 @@ pub fn router() -> Router<AppState> {
 /// What `/v1/trace` answers with, the default first (`text/plain` is sent with
 /// `; charset=utf-8`).
 pub const TRACE_TYPES: &[&str] = &["application/json", "text/plain"];
-
-/// The media type of every text answer.
-pub const TEXT_PLAIN_UTF8: &str = "text/plain; charset=utf-8";
 
 /// Largest `max_rays` and `max_triangles` a request may ask for: an explanation grows
 /// with both, and it is built in memory before it is sent.
@@ -61,9 +61,8 @@ pub struct TraceQuery {
     pub u: u32,
     /// Row.
     pub v: u32,
-    /// `Some(true)` for `format=text`, `Some(false)` for `format=json`, `None` to let
-    /// `Accept` decide.
-    pub text: Option<bool>,
+    /// `format=text` or `format=json`; `None` to let `Accept` decide.
+    pub form: Option<ExplanationForm>,
     /// What to list.
     pub options: ExplainOptions,
 }
@@ -72,7 +71,7 @@ impl<S: Send + Sync> FromRequestParts<S> for TraceQuery {
     type Rejection = ApiError;
 
     async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, ApiError> {
-        let (mut u, mut v, mut text, mut candidates) = (None, None, None, None);
+        let (mut u, mut v, mut form, mut candidates) = (None, None, None, None);
         let (mut max_triangles, mut max_rays) = (None, None);
         let whole = "a whole number ≥ 0";
         for (k, value) in query_pairs(&parts.uri)? {
@@ -80,8 +79,15 @@ impl<S: Send + Sync> FromRequestParts<S> for TraceQuery {
                 "u" => once(&mut u, "u", parse_param::<u32>("u", &value, whole)?)?,
                 "v" => once(&mut v, "v", parse_param::<u32>("v", &value, whole)?)?,
                 "format" => {
-                    let t = parse_choice("format", &value, &[("json", false), ("text", true)])?;
-                    once(&mut text, "format", t)?;
+                    let f = parse_choice(
+                        "format",
+                        &value,
+                        &[
+                            ("json", ExplanationForm::Json),
+                            ("text", ExplanationForm::Text),
+                        ],
+                    )?;
+                    once(&mut form, "format", f)?;
                 }
                 "candidates" => {
                     let c = parse_choice(
@@ -118,7 +124,7 @@ impl<S: Send + Sync> FromRequestParts<S> for TraceQuery {
         Ok(TraceQuery {
             u: u.ok_or_else(|| required("u"))?,
             v: v.ok_or_else(|| required("v"))?,
-            text,
+            form,
             options: ExplainOptions {
                 candidates: candidates.unwrap_or(defaults.candidates),
                 max_triangles: max_triangles.unwrap_or(defaults.max_triangles),
@@ -147,11 +153,18 @@ async fn trace(
     headers: HeaderMap,
     body: SceneBody,
 ) -> Result<Response, ApiError> {
-    let text = match query.text {
+    let form = match query.form {
         // An explicit format still has to be acceptable to the client.
-        Some(true) => negotiate(&headers, &["text/plain"]).map(|_| true)?,
-        Some(false) => negotiate(&headers, &["application/json"]).map(|_| false)?,
-        None => negotiate(&headers, TRACE_TYPES)? == "text/plain",
+        Some(ExplanationForm::Text) => {
+            negotiate(&headers, &["text/plain"]).map(|_| ExplanationForm::Text)?
+        }
+        Some(ExplanationForm::Json) => {
+            negotiate(&headers, &["application/json"]).map(|_| ExplanationForm::Json)?
+        }
+        None => match negotiate(&headers, TRACE_TYPES)? {
+            "text/plain" => ExplanationForm::Text,
+            _ => ExplanationForm::Json,
+        },
     };
     let scene = body.scene;
     let (u, v) = (query.u, query.v);
@@ -186,24 +199,16 @@ async fn trace(
             let r = Renderer::new(scene);
             explain::check_pixel(&r, u, v).map_err(ApiError::PixelOutside)?;
             let e = explain::explain(&r, u, v, &options);
-            if text {
-                return Ok(explain::to_text(&e).into_bytes());
-            }
-            // As `raytile trace --format json` prints it.
-            let mut json = serde_json::to_vec_pretty(&e)
-                .map_err(|e| ApiError::Internal(format!("cannot write the explanation: {e}")))?;
-            json.push(b'\n');
-            Ok(json)
+            write_explanation(&e, form)
+                .map_err(|e| ApiError::Internal(format!("cannot write the explanation: {e}")))
         },
     )
     .await??;
-    let media = if text {
-        TEXT_PLAIN_UTF8
-    } else {
-        "application/json"
-    };
     Ok((
-        [(header::CONTENT_TYPE, HeaderValue::from_static(media))],
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static(form.content_type()),
+        )],
         answer,
     )
         .into_response())

@@ -7,6 +7,7 @@
 //!   `bash .ci/test-all` installs nginx and runs it);
 //! - `grade`: `raytile trace | grade` as an instructor runs them;
 //! - `geometry`: shapes under transforms against hand-computed answers;
+//! - `imports`: no two modules import each other, the server never the command line;
 //! - `lecture`: the lecture's worked example;
 //! - `properties`: BVH against brute force, invariance, determinism, regions;
 //! - `schema`: the JSON Schema and the parser agree;
@@ -24,6 +25,7 @@ mod cli;
 mod cluster;
 mod geometry;
 mod grade;
+mod imports;
 mod lecture;
 mod openapi;
 mod properties;

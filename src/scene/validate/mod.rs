@@ -26,8 +26,9 @@ use serde_json::Value;
 use super::document::*;
 use super::problem::{Pointer, Problem, SceneError};
 use super::{Limits, Scene};
+use crate::json::strip_position;
 pub(crate) use normalise::normalise;
-use read::{Failed, read_document, strip_position};
+use read::{Failed, read_document};
 
 /// At most this many problems are listed; the rest are counted.
 const MAX_PROBLEMS: usize = 100;

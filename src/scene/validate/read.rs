@@ -9,6 +9,7 @@ use serde::de::DeserializeOwned;
 use serde_json::Value;
 
 use super::Problems;
+use crate::json::strip_position;
 use crate::scene::document::*;
 use crate::scene::problem::Pointer;
 
@@ -24,14 +25,6 @@ const TOP_LEVEL: [&str; 9] = [
     "objects",
     "lights",
 ];
-
-/// serde_json's messages end in "at line 1 column 5"; we report the position separately.
-pub(super) fn strip_position(msg: &str) -> String {
-    match msg.rfind(" at line ") {
-        Some(i) => msg[..i].to_string(),
-        None => msg.to_string(),
-    }
-}
 
 fn take<T: DeserializeOwned>(v: Value, at: &Pointer, p: &mut Problems) -> Option<T> {
     match serde_path_to_error::deserialize::<_, T>(v) {
@@ -337,14 +330,5 @@ mod tests {
             )]
         );
         assert!(doc.expect("a document").1.materials);
-    }
-
-    #[test]
-    fn strip_position_drops_only_the_trailing_position() {
-        assert_eq!(
-            strip_position("expected `,` at line 1 column 5"),
-            "expected `,`"
-        );
-        assert_eq!(strip_position("no position here"), "no position here");
     }
 }
