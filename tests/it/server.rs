@@ -9,7 +9,7 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use raytile::config::ServeArgs;
-use raytile::output::hits::{NPY_DESCR, NPY_RECORD_BYTES};
+use raytile::format::npy::{NPY_DESCR, NPY_RECORD_BYTES};
 use serde_json::{Value, json};
 
 use crate::support::{decode_png, raytile, scene_file};
