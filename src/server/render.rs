@@ -70,6 +70,7 @@ impl Offers for HitTypes {
         HitFormat::Json.media_type(),
         HitFormat::Ndjson.media_type(),
         HitFormat::Npy.media_type(),
+        HitFormat::Csv.media_type(),
     ];
 }
 
