@@ -163,3 +163,88 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<'_, W> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::format::{HitData, ReadError, SubmittedHit, npy};
+    use crate::geometry::Face;
+    use crate::scene::Limits;
+    use glam::DVec3;
+
+    /// A made-up first hit for every pixel: misses, hits with and without a face.
+    fn surface(u: u32, v: u32) -> Option<Surface> {
+        (!(u + v).is_multiple_of(3)).then(|| Surface {
+            lambda: 1.0 + u as f64 / 7.0 + v as f64 * 0.1,
+            object: 0,
+            point: DVec3::new(u as f64 / 3.0, v as f64, -0.0),
+            object_point: DVec3::new(0.1, 0.2, 0.3),
+            normal: DVec3::new(0.0, 0.6, -0.8),
+            front: true,
+            face: u.is_multiple_of(2).then_some(Face::PosY),
+        })
+    }
+
+    #[test]
+    fn every_format_reads_back_the_region_whatever_order_tiles_finish_in() {
+        let scene = crate::scene::parse(include_bytes!("../../scenes/lecture.json"), &Limits::NONE)
+            .unwrap();
+        let region = Rect {
+            x: 1,
+            y: 2,
+            width: 4,
+            height: 3,
+        };
+        let mut expected = Vec::new();
+        for v in region.y..region.y + region.height {
+            for u in region.x..region.x + region.width {
+                let p = PixelHit::new(&scene, u, v, &surface(u, v));
+                expected.push(SubmittedHit::from(&p));
+            }
+        }
+        for format in HitFormat::ALL {
+            let write = |reverse: bool| {
+                let sink = HitSink::new(&scene, format, Vec::new(), region, 2).unwrap();
+                let mut tiles = region.tiles(2);
+                if reverse {
+                    tiles.reverse();
+                }
+                for t in tiles {
+                    let pixels = (t.y..t.y + t.height)
+                        .flat_map(|v| (t.x..t.x + t.width).map(move |u| surface(u, v)))
+                        .collect();
+                    sink.tile(Tile {
+                        rect: t,
+                        pixels,
+                        rays: 0,
+                    })
+                    .unwrap();
+                }
+                sink.finish().unwrap()
+            };
+            let (forward, backward) = (write(false), write(true));
+            if format != HitFormat::Ndjson {
+                assert!(forward == backward, "{format:?} depends on the tile order");
+            }
+            let read: fn(&[u8]) -> Result<HitData, ReadError> = match format {
+                HitFormat::Json => json::read,
+                HitFormat::Ndjson => ndjson::read,
+                HitFormat::Npy => npy::read,
+                HitFormat::Csv => csv::read,
+            };
+            let data = read(&backward).unwrap();
+            assert_eq!(data.format, format.name());
+            let mut got: Vec<SubmittedHit> =
+                data.groups.into_iter().flat_map(|g| g.pixels).collect();
+            if format == HitFormat::Npy {
+                // The array knows only its own indices; the region is where it lies.
+                for p in &mut got {
+                    p.u = p.u.map(|u| u + region.x);
+                    p.v = p.v.map(|v| v + region.y);
+                }
+            }
+            got.sort_by_key(|p| (p.v, p.u));
+            assert_eq!(got, expected, "{format:?}");
+        }
+    }
+}
