@@ -93,8 +93,8 @@ impl HitFormat {
     }
 }
 
-/// One pixel's hit data as raytile writes it (`docs`: hit data), the fields JSON and
-/// NDJSON name; NPY and CSV carry the same values in their own layout.
+/// One pixel's hit data as raytile writes it: the fields JSON and NDJSON name; NPY and
+/// CSV carry the same values in their own layout.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PixelHit {
     /// Column.
