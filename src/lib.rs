@@ -6,6 +6,8 @@
 pub mod cli;
 /// The server's configuration (flags and environment).
 pub mod config;
+/// The file formats, reader beside writer: hit data (JSON, NDJSON, NPY, CSV) and PNG.
+pub mod format;
 /// Rays, transforms, shapes, the BVH and hit records.
 pub mod geometry;
 /// Autograding: explain a pixel, grade a submission against the reference.

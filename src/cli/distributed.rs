@@ -23,7 +23,7 @@
 //!    and its bytes depend only on the pixels.
 
 use std::fs::File;
-use std::io::{Cursor, IsTerminal};
+use std::io::IsTerminal;
 use std::path::Path;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -39,6 +39,7 @@ use tokio::time::Instant;
 
 use super::TraceOptions;
 use super::input::{read_input, scene_error};
+use crate::format::png::PngReader;
 use crate::output::PngSink;
 use crate::render::{Rect, Tile, TileSink};
 use crate::scene::{self, Limits};
@@ -679,29 +680,21 @@ pub fn decode_band(bytes: &[u8], rect: Rect) -> Result<Vec<[u8; 3]>, String> {
         .saturating_mul(3);
     // Room for the image and the decoder's own buffers, and no more: the header is
     // checked against the band before the image is allocated.
-    let limits = png::Limits {
-        bytes: raw.saturating_mul(2).saturating_add(8 << 20),
-    };
-    let mut reader = png::Decoder::new_with_limits(Cursor::new(bytes), limits)
-        .read_info()
-        .map_err(|e| format!("something that is not a PNG ({e})"))?;
-    let (w, h) = (reader.info().width, reader.info().height);
+    let limit = raw.saturating_mul(2).saturating_add(8 << 20);
+    let png =
+        PngReader::new(bytes, limit).map_err(|e| format!("something that is not a PNG ({e})"))?;
+    let (w, h) = png.size();
     if (w, h) != (rect.width, rect.height) {
         return Err(format!(
             "a {w} × {h} PNG for a {} × {} region",
             rect.width, rect.height
         ));
     }
-    if reader.output_color_type() != (png::ColorType::Rgb, png::BitDepth::Eight)
-        || reader.output_buffer_size() != Some(raw)
-    {
+    if !png.is_rgb8() {
         return Err("a PNG that is not 8-bit RGB".into());
     }
-    let mut buf = vec![0; raw];
-    reader
-        .next_frame(&mut buf)
-        .map_err(|e| format!("a broken PNG ({e})"))?;
-    Ok(buf.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect())
+    let image = png.decode().map_err(|e| format!("a broken PNG ({e})"))?;
+    Ok(image.pixels())
 }
 
 #[cfg(test)]

@@ -14,7 +14,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use super::TraceOptions;
 use super::input::{load_scene, read_input};
-use crate::output::{HitFormat, HitSink, PngSink};
+use crate::format::HitFormat;
+use crate::output::{HitSink, PngSink};
 use crate::render::{
     self, ColourKernel, HitKernel, Kernel, Rect, Renderer, SinkClosed, Tile, TileSink,
 };
@@ -37,11 +38,11 @@ pub struct RenderArgs {
 pub struct HitsArgs {
     #[command(flatten)]
     opts: TraceOptions,
-    /// The file to write: `.json`, `.ndjson` or `.npy`.
+    /// The file to write: `.json`, `.ndjson`, `.npy` or `.csv`.
     #[arg(short, long)]
     output: PathBuf,
     /// The format, when the extension does not say.
-    #[arg(long, value_parser = ["json", "ndjson", "npy"])]
+    #[arg(long, value_parser = HitFormat::ALL.map(HitFormat::name))]
     format: Option<String>,
 }
 
@@ -116,13 +117,11 @@ pub fn render(a: RenderArgs) -> anyhow::Result<ExitCode> {
 
 /// `raytile hits`.
 pub fn hits(a: HitsArgs) -> anyhow::Result<ExitCode> {
-    let format = match a.format.as_deref() {
-        Some("json") => HitFormat::Json,
-        Some("ndjson") => HitFormat::Ndjson,
-        Some("npy") => HitFormat::Npy,
-        _ => HitFormat::from_path(&a.output).with_context(|| {
+    let format = match a.format.as_deref().and_then(HitFormat::from_name) {
+        Some(f) => f,
+        None => HitFormat::from_path(&a.output).with_context(|| {
             format!(
-                "cannot tell the format of {}: use .json, .ndjson or .npy, or --format",
+                "cannot tell the format of {}: use .json, .ndjson, .npy or .csv, or --format",
                 a.output.display()
             )
         })?,

@@ -30,7 +30,7 @@ pub struct Cli {
 pub enum Command {
     /// Render a scene to a PNG, here or across servers (`--servers`).
     Render(local::RenderArgs),
-    /// Write per-pixel hit data (JSON, NDJSON or NPY, by the output's extension).
+    /// Write per-pixel hit data (JSON, NDJSON, NPY or CSV, by the output's extension).
     Hits(local::HitsArgs),
     /// Check a scene and list every problem with its JSON pointer.
     Validate(local::ValidateArgs),

@@ -31,6 +31,7 @@ use std::sync::Mutex;
 
 use serde::{Deserialize, Serialize};
 
+use crate::format::png;
 use crate::geometry::Surface;
 use crate::render::{
     Cancel, ColourKernel, DEFAULT_TILE_PX, HitKernel, Kernel, Rect, Renderer, SinkClosed, Stopped,
@@ -420,7 +421,7 @@ pub fn grade(
                 ssim: metrics::ssim(&reference, &img),
                 flip: opts.flip.then(|| metrics::flip(&reference, &img)),
             };
-            Ok(Report::new("png", w, h, tol, opts, cmp, Some(image)))
+            Ok(Report::new(png::NAME, w, h, tol, opts, cmp, Some(image)))
         }
         Submission::Hits(data) => {
             let placed = data.place(w, h)?;

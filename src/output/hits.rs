@@ -1,109 +1,17 @@
-//! Per-pixel hit data (SPEC §5) in three forms:
-//! - JSON: one document, pixels in row-major order, written row by row;
-//! - NDJSON: one line per tile, in the order tiles finish;
-//! - NPY: a NumPy structured array of shape `(h, w)`, written row by row.
-//!
-//! Numbers are f64 written in their shortest round-trip form (JSON) or as raw
-//! little-endian doubles (NPY), so they read back exactly.
+//! Hit data streamed while tiles trace, in any [`HitFormat`]: NDJSON a line per tile in
+//! the order tiles finish; JSON, NPY and CSV row by row, top to bottom, as soon as each
+//! row is complete. The bytes of each format are its file's in [`crate::format`]; this
+//! sink only decides when they are written.
 
 use std::io::{self, Write};
 use std::sync::Mutex;
 
-use serde::{Deserialize, Serialize};
-
 use super::rows::RowAssembler;
+use crate::format::npy::{NPY_RECORD_BYTES, npy_header, npy_record_bytes};
+use crate::format::{HitFormat, PixelHit, csv, json, ndjson};
 use crate::geometry::Surface;
 use crate::render::{Rect, SinkClosed, Tile, TileSink};
 use crate::scene::Scene;
-
-/// One pixel's hit data as it appears in JSON and NDJSON.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PixelHit {
-    /// Column.
-    pub u: u32,
-    /// Row.
-    pub v: u32,
-    /// Whether anything was hit.
-    pub hit: bool,
-    /// Index of the object hit.
-    pub object: Option<u32>,
-    /// Its name.
-    pub name: Option<String>,
-    /// Ray parameter along the unnormalised primary direction.
-    pub lambda: Option<f64>,
-    /// World-space point.
-    pub point: Option<[f64; 3]>,
-    /// Object-space point.
-    pub object_point: Option<[f64; 3]>,
-    /// Unit world-space normal.
-    pub normal: Option<[f64; 3]>,
-    /// Cube face (`"+x"` … `"-z"`).
-    pub face: Option<String>,
-}
-
-impl PixelHit {
-    /// The record of pixel `(u, v)`.
-    pub fn new(scene: &Scene, u: u32, v: u32, s: &Option<Surface>) -> PixelHit {
-        match s {
-            None => PixelHit {
-                u,
-                v,
-                hit: false,
-                object: None,
-                name: None,
-                lambda: None,
-                point: None,
-                object_point: None,
-                normal: None,
-                face: None,
-            },
-            Some(s) => PixelHit {
-                u,
-                v,
-                hit: true,
-                object: Some(s.object),
-                name: scene.object_name(s.object).map(str::to_owned),
-                lambda: Some(s.lambda),
-                point: Some(s.point.to_array()),
-                object_point: Some(s.object_point.to_array()),
-                normal: Some(s.normal.to_array()),
-                face: s.face.map(|f| f.label().to_owned()),
-            },
-        }
-    }
-}
-
-/// The hit-data formats, by media type.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum HitFormat {
-    /// `application/json`.
-    Json,
-    /// `application/x-ndjson`.
-    Ndjson,
-    /// `application/x-npy`.
-    Npy,
-}
-
-impl HitFormat {
-    /// The media type.
-    pub fn media_type(self) -> &'static str {
-        match self {
-            HitFormat::Json => "application/json",
-            HitFormat::Ndjson => "application/x-ndjson",
-            HitFormat::Npy => "application/x-npy",
-        }
-    }
-
-    /// The format for a file name's extension (`.json`, `.ndjson`, `.npy`).
-    pub fn from_path(p: &std::path::Path) -> Option<HitFormat> {
-        match p.extension()?.to_str()? {
-            "json" => Some(HitFormat::Json),
-            "ndjson" | "jsonl" => Some(HitFormat::Ndjson),
-            "npy" => Some(HitFormat::Npy),
-            _ => None,
-        }
-    }
-}
 
 fn closed(e: impl std::fmt::Display) -> SinkClosed {
     SinkClosed(e.to_string())
@@ -118,7 +26,7 @@ pub struct HitSink<'s, W: Write + Send> {
 
 struct HitState<W> {
     out: W,
-    /// Rows of surfaces, for JSON.
+    /// Rows of surfaces, for JSON and CSV.
     rows: RowAssembler<Option<Surface>>,
     /// Rows of encoded records, for NPY.
     records: RowAssembler<[u8; NPY_RECORD_BYTES]>,
@@ -127,7 +35,8 @@ struct HitState<W> {
 }
 
 impl<'s, W: Write + Send> HitSink<'s, W> {
-    /// Writes the format's header (JSON's opening, NPY's dtype and shape) at once.
+    /// Writes the format's header (JSON's opening, NPY's dtype and shape, CSV's column
+    /// names) at once.
     pub fn new(
         scene: &'s Scene,
         format: HitFormat,
@@ -136,16 +45,13 @@ impl<'s, W: Write + Send> HitSink<'s, W> {
         tile_px: u32,
     ) -> io::Result<Self> {
         match format {
-            HitFormat::Json => {
-                write!(
-                    out,
-                    "{{\"width\":{},\"height\":{},\"region\":",
-                    scene.width, scene.height
-                )?;
-                serde_json::to_writer(&mut out, &region)?;
-                out.write_all(b",\"pixels\":[")?;
-            }
+            HitFormat::Json => json::write_start(&mut out, scene.width, scene.height, region)?,
             HitFormat::Npy => out.write_all(&npy_header(region.height, region.width))?,
+            HitFormat::Csv => {
+                let mut header = Vec::new();
+                csv::push_header(&mut header);
+                out.write_all(&header)?;
+            }
             HitFormat::Ndjson => {}
         }
         Ok(HitSink {
@@ -168,7 +74,7 @@ impl<'s, W: Write + Send> HitSink<'s, W> {
             .into_inner()
             .map_err(|_| io::Error::other("a worker panicked while writing"))?;
         let complete = match self.format {
-            HitFormat::Json => s.rows.is_complete(),
+            HitFormat::Json | HitFormat::Csv => s.rows.is_complete(),
             HitFormat::Npy => s.records.is_complete(),
             HitFormat::Ndjson => true,
         };
@@ -176,7 +82,7 @@ impl<'s, W: Write + Send> HitSink<'s, W> {
             return Err(io::Error::other("the hit data is incomplete"));
         }
         if self.format == HitFormat::Json {
-            s.out.write_all(b"]}\n")?;
+            s.out.write_all(json::END)?;
         }
         s.out.flush()?;
         Ok(s.out)
@@ -190,23 +96,17 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<'_, W> {
             HitFormat::Ndjson => {
                 // Serialise outside the lock: only the write is serialised.
                 let mut line = Vec::with_capacity(tile.pixels.len() * 160);
-                line.extend_from_slice(b"{\"tile\":");
-                serde_json::to_writer(&mut line, &tile.rect).map_err(closed)?;
-                line.extend_from_slice(b",\"pixels\":[");
                 let r = tile.rect;
-                for (k, s) in tile.pixels.iter().enumerate() {
-                    if k > 0 {
-                        line.push(b',');
-                    }
+                let pixels = tile.pixels.iter().enumerate().map(|(k, s)| {
                     let (u, v) = (r.x + k as u32 % r.width, r.y + k as u32 / r.width);
-                    serde_json::to_writer(&mut line, &PixelHit::new(scene, u, v, s))
-                        .map_err(closed)?;
-                }
-                line.extend_from_slice(b"]}\n");
+                    PixelHit::new(scene, u, v, s)
+                });
+                ndjson::push_line(&mut line, r, pixels).map_err(closed)?;
                 let mut st = self.state.lock().map_err(closed)?;
                 st.out.write_all(&line).map_err(closed)
             }
-            HitFormat::Json => {
+            HitFormat::Json | HitFormat::Csv => {
+                let csv = self.format == HitFormat::Csv;
                 let mut guard = self.state.lock().map_err(closed)?;
                 let HitState {
                     out,
@@ -219,15 +119,12 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<'_, W> {
                 rows.push(tile, |v, segments| {
                     buf.clear();
                     for (k, s) in segments.iter().flat_map(|s| s.iter()).enumerate() {
-                        if !*first {
-                            buf.push(b',');
+                        let p = PixelHit::new(scene, x0 + k as u32, v, s);
+                        if csv {
+                            csv::push_row(buf, &p);
+                        } else {
+                            json::push_pixel(buf, first, &p)?;
                         }
-                        *first = false;
-                        serde_json::to_writer(
-                            &mut *buf,
-                            &PixelHit::new(scene, x0 + k as u32, v, s),
-                        )
-                        .map_err(io::Error::other)?;
                     }
                     out.write_all(buf)
                 })
@@ -267,84 +164,87 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<'_, W> {
     }
 }
 
-/// The NumPy dtype of a hit record, fields as SPEC §5 names them (`name` left out).
-pub const NPY_DESCR: &str = "[('u', '<i4'), ('v', '<i4'), ('hit', '|b1'), ('object', '<i4'), ('lambda', '<f8'), ('point', '<f8', (3,)), ('object_point', '<f8', (3,)), ('normal', '<f8', (3,)), ('face', '<U2')]";
-
-/// Bytes per NPY record.
-pub const NPY_RECORD_BYTES: usize = 4 + 4 + 1 + 4 + 8 + 24 + 24 + 24 + 8;
-
-/// The NPY 1.0 header of an `(h, w)` array of hit records, padded to 64 bytes.
-pub fn npy_header(h: u32, w: u32) -> Vec<u8> {
-    let dict = format!("{{'descr': {NPY_DESCR}, 'fortran_order': False, 'shape': ({h}, {w}), }}");
-    let unpadded = 10 + dict.len() + 1;
-    let pad = (64 - unpadded % 64) % 64;
-    let header_len = dict.len() + pad + 1;
-    let mut out = Vec::with_capacity(10 + header_len);
-    out.extend_from_slice(b"\x93NUMPY\x01\x00");
-    out.extend_from_slice(&(header_len as u16).to_le_bytes());
-    out.extend_from_slice(dict.as_bytes());
-    out.extend(std::iter::repeat_n(b' ', pad));
-    out.push(b'\n');
-    out
-}
-
-/// Appends one record: a miss has `object = −1`, NaN vectors and an empty face.
-#[inline]
-pub fn npy_record(buf: &mut Vec<u8>, u: u32, v: u32, s: &Option<Surface>) {
-    buf.extend_from_slice(&npy_record_bytes(u, v, s));
-}
-
-/// One record's bytes.
-#[inline]
-pub fn npy_record_bytes(u: u32, v: u32, s: &Option<Surface>) -> [u8; NPY_RECORD_BYTES] {
-    let mut r = [0u8; NPY_RECORD_BYTES];
-    r[0..4].copy_from_slice(&(u as i32).to_le_bytes());
-    r[4..8].copy_from_slice(&(v as i32).to_le_bytes());
-    r[8] = s.is_some() as u8;
-    r[9..13].copy_from_slice(&s.as_ref().map_or(-1, |s| s.object as i32).to_le_bytes());
-    let values: [f64; 10] = match s {
-        Some(s) => {
-            let (p, o, n) = (s.point, s.object_point, s.normal);
-            [s.lambda, p.x, p.y, p.z, o.x, o.y, o.z, n.x, n.y, n.z]
-        }
-        None => [f64::NAN; 10],
-    };
-    for (k, x) in values.iter().enumerate() {
-        r[13 + 8 * k..21 + 8 * k].copy_from_slice(&x.to_le_bytes());
-    }
-    // '<U2': two UCS-4 code units; an empty string is all zeros.
-    if let Some(f) = s.as_ref().and_then(|s| s.face) {
-        let b = f.label().as_bytes();
-        r[93] = b[0];
-        r[97] = b[1];
-    }
-    r
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::format::{HitData, ReadError, SubmittedHit, npy};
+    use crate::geometry::Face;
+    use crate::scene::Limits;
+    use glam::DVec3;
 
-    #[test]
-    fn npy_header_is_aligned_and_parsable_text() {
-        let h = npy_header(720, 1280);
-        assert_eq!(h.len() % 64, 0);
-        assert_eq!(&h[..8], b"\x93NUMPY\x01\x00");
-        let len = u16::from_le_bytes([h[8], h[9]]) as usize;
-        assert_eq!(10 + len, h.len());
-        assert!(
-            std::str::from_utf8(&h[10..])
-                .unwrap()
-                .contains("'shape': (720, 1280)")
-        );
-        assert_eq!(*h.last().unwrap(), b'\n');
+    /// A made-up first hit for every pixel: misses, hits with and without a face.
+    fn surface(u: u32, v: u32) -> Option<Surface> {
+        (!(u + v).is_multiple_of(3)).then(|| Surface {
+            lambda: 1.0 + u as f64 / 7.0 + v as f64 * 0.1,
+            object: 0,
+            point: DVec3::new(u as f64 / 3.0, v as f64, -0.0),
+            object_point: DVec3::new(0.1, 0.2, 0.3),
+            normal: DVec3::new(0.0, 0.6, -0.8),
+            front: true,
+            face: u.is_multiple_of(2).then_some(Face::PosY),
+        })
     }
 
     #[test]
-    fn npy_record_size_matches_dtype() {
-        let mut b = Vec::new();
-        npy_record(&mut b, 1, 2, &None);
-        assert_eq!(b.len(), NPY_RECORD_BYTES);
-        assert_eq!(&b[9..13], &(-1i32).to_le_bytes());
+    fn every_format_reads_back_the_region_whatever_order_tiles_finish_in() {
+        let scene = crate::scene::parse(include_bytes!("../../scenes/lecture.json"), &Limits::NONE)
+            .unwrap();
+        let region = Rect {
+            x: 1,
+            y: 2,
+            width: 4,
+            height: 3,
+        };
+        let mut expected = Vec::new();
+        for v in region.y..region.y + region.height {
+            for u in region.x..region.x + region.width {
+                let p = PixelHit::new(&scene, u, v, &surface(u, v));
+                expected.push(SubmittedHit::from(&p));
+            }
+        }
+        for format in HitFormat::ALL {
+            let write = |reverse: bool| {
+                let sink = HitSink::new(&scene, format, Vec::new(), region, 2).unwrap();
+                let mut tiles = region.tiles(2);
+                if reverse {
+                    tiles.reverse();
+                }
+                for t in tiles {
+                    let pixels = (t.y..t.y + t.height)
+                        .flat_map(|v| (t.x..t.x + t.width).map(move |u| surface(u, v)))
+                        .collect();
+                    sink.tile(Tile {
+                        rect: t,
+                        pixels,
+                        rays: 0,
+                    })
+                    .unwrap();
+                }
+                sink.finish().unwrap()
+            };
+            let (forward, backward) = (write(false), write(true));
+            if format != HitFormat::Ndjson {
+                assert!(forward == backward, "{format:?} depends on the tile order");
+            }
+            let read: fn(&[u8]) -> Result<HitData, ReadError> = match format {
+                HitFormat::Json => json::read,
+                HitFormat::Ndjson => ndjson::read,
+                HitFormat::Npy => npy::read,
+                HitFormat::Csv => csv::read,
+            };
+            let data = read(&backward).unwrap();
+            assert_eq!(data.format, format.name());
+            let mut got: Vec<SubmittedHit> =
+                data.groups.into_iter().flat_map(|g| g.pixels).collect();
+            if format == HitFormat::Npy {
+                // The array knows only its own indices; the region is where it lies.
+                for p in &mut got {
+                    p.u = p.u.map(|u| u + region.x);
+                    p.v = p.v.map(|v| v + region.y);
+                }
+            }
+            got.sort_by_key(|p| (p.v, p.u));
+            assert_eq!(got, expected, "{format:?}");
+        }
     }
 }

@@ -1,9 +1,11 @@
-//! Outputs: tile sinks that stream a PNG or hit data while tiles are still tracing.
+//! Sinks that stream a PNG or hit data while tiles are still tracing: they put tiles,
+//! which finish in any order on any thread, into the order a format needs
+//! ([`RowAssembler`]) and hand the rows to the writers of [`crate::format`].
 
 pub mod hits;
 pub mod png;
 pub mod rows;
 
-pub use hits::{HitFormat, HitSink, PixelHit};
+pub use hits::HitSink;
 pub use png::PngSink;
 pub use rows::RowAssembler;

@@ -1,4 +1,5 @@
-//! 8-bit RGB PNG, written row by row as soon as rows are complete.
+//! A PNG written row by row as soon as rows are complete (the encoder and its settings
+//! are [`crate::format::png`]'s).
 //!
 //! Rows are always fed to the encoder one at a time, so the bytes depend only on the
 //! pixels: the same image gives the same file whatever the tile size or thread count.
@@ -7,6 +8,7 @@ use std::io::{self, Write};
 use std::sync::{Arc, Mutex};
 
 use super::rows::RowAssembler;
+use crate::format::png::stream_writer;
 use crate::render::{Rect, SinkClosed, Tile, TileSink};
 
 /// A [`TileSink`] that streams a PNG of `region` into a writer.
@@ -58,21 +60,11 @@ impl<W: Write + Send + 'static> PngSink<W> {
     /// Writes the PNG header for a `region.width × region.height` image at once.
     pub fn new(writer: W, region: Rect, tile_px: u32) -> io::Result<Self> {
         let error = Arc::new(Mutex::new(None));
-        let mut enc = png::Encoder::new(
-            Checked {
-                inner: writer,
-                error: error.clone(),
-            },
-            region.width,
-            region.height,
-        );
-        enc.set_color(png::ColorType::Rgb);
-        enc.set_depth(png::BitDepth::Eight);
-        enc.set_compression(png::Compression::Fast);
-        let stream = enc
-            .write_header()
-            .and_then(|w| w.into_stream_writer())
-            .map_err(png_err)?;
+        let checked = Checked {
+            inner: writer,
+            error: error.clone(),
+        };
+        let stream = stream_writer(checked, region.width, region.height).map_err(png_err)?;
         Ok(PngSink {
             state: Mutex::new(State {
                 rows: RowAssembler::new(region, tile_px),

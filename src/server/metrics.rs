@@ -6,7 +6,7 @@
 //! | metric | type | labels |
 //! | --- | --- | --- |
 //! | `raytile_http_requests_total` | counter | `route`, `method`, `status` |
-//! | `raytile_render_duration_seconds` | histogram | `output` (png, json, ndjson, npy; trace, grade), `outcome` (complete, cancelled, failed) |
+//! | `raytile_render_duration_seconds` | histogram | `output` (png, json, ndjson, npy, csv; trace, grade), `outcome` (complete, cancelled, failed) |
 //! | `raytile_rays_traced_total` | counter | |
 //! | `raytile_tiles_traced_total` | counter | |
 //! | `raytile_renders_in_flight` | gauge | |

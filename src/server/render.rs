@@ -38,7 +38,8 @@ use super::extract::{Accepted, Offers, RegionQuery, RequestInfo, SceneBody, dead
 use super::metrics::Metrics;
 use super::shutdown::Phase;
 use super::stream::{self, Aborter, BodyWriter};
-use crate::output::{HitFormat, HitSink, PngSink};
+use crate::format::{HitFormat, png};
+use crate::output::{HitSink, PngSink};
 use crate::render::{
     self, Cancel, ColourKernel, HitKernel, Rect, RenderStats, Renderer, SinkClosed, Stopped, Tile,
     TileSink,
@@ -57,7 +58,7 @@ pub fn router() -> Router<AppState> {
 pub struct PngOnly;
 
 impl Offers for PngOnly {
-    const OFFERS: &'static [&'static str] = &["image/png"];
+    const OFFERS: &'static [&'static str] = &[png::MEDIA_TYPE];
 }
 
 /// What `/v1/hits` answers with, the default first (SPEC §5).
@@ -66,9 +67,10 @@ pub struct HitTypes;
 
 impl Offers for HitTypes {
     const OFFERS: &'static [&'static str] = &[
-        "application/json",
-        "application/x-ndjson",
-        "application/x-npy",
+        HitFormat::Json.media_type(),
+        HitFormat::Ndjson.media_type(),
+        HitFormat::Npy.media_type(),
+        HitFormat::Csv.media_type(),
     ];
 }
 
@@ -93,7 +95,7 @@ enum Output {
 impl Output {
     fn media_type(self) -> &'static str {
         match self {
-            Output::Png => "image/png",
+            Output::Png => png::MEDIA_TYPE,
             Output::Hits(f) => f.media_type(),
         }
     }
@@ -101,10 +103,8 @@ impl Output {
     /// The `output` label of the duration histogram.
     fn label(self) -> &'static str {
         match self {
-            Output::Png => "png",
-            Output::Hits(HitFormat::Json) => "json",
-            Output::Hits(HitFormat::Ndjson) => "ndjson",
-            Output::Hits(HitFormat::Npy) => "npy",
+            Output::Png => png::NAME,
+            Output::Hits(f) => f.name(),
         }
     }
 }
@@ -133,11 +133,7 @@ async fn hits(
     headers: HeaderMap,
     body: SceneBody,
 ) -> Result<Response, ApiError> {
-    let format = match media {
-        "application/x-ndjson" => HitFormat::Ndjson,
-        "application/x-npy" => HitFormat::Npy,
-        _ => HitFormat::Json,
-    };
+    let format = HitFormat::from_media_type(media).unwrap_or(HitFormat::Json);
     start(app, info, query, &headers, body, Output::Hits(format)).await
 }
 

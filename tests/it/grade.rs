@@ -6,9 +6,9 @@ use std::path::{Path, PathBuf};
 use std::process::Output;
 
 use glam::DVec3;
+use raytile::format::PixelHit;
+use raytile::format::npy::{npy_header, npy_record};
 use raytile::geometry::{Face, Surface};
-use raytile::output::PixelHit;
-use raytile::output::hits::{npy_header, npy_record};
 use serde_json::Value;
 
 use crate::support::*;

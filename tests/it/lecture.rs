@@ -1,8 +1,8 @@
 //! The lecture's worked example (`scenes/lecture.json`): a unit sphere translated by
 //! (1, 0, 2), a 5 × 5 image, f = 1.
 
+use raytile::format::PixelHit;
 use raytile::geometry::Ray;
-use raytile::output::PixelHit;
 use raytile::render::Renderer;
 use raytile::scene::{Limits, parse};
 use std::sync::Arc;

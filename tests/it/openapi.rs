@@ -268,6 +268,7 @@ async fn answers_for_every_example_scene_match_their_schemas() {
             "application/json",
             "application/x-ndjson",
             "application/x-npy",
+            "text/csv",
         ] {
             let res = app
                 .post_json(&hits, body.clone(), &[("accept", accept)])

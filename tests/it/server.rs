@@ -9,7 +9,7 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use raytile::config::ServeArgs;
-use raytile::output::hits::{NPY_DESCR, NPY_RECORD_BYTES};
+use raytile::format::npy::{NPY_DESCR, NPY_RECORD_BYTES};
 use serde_json::{Value, json};
 
 use crate::support::{decode_png, raytile, scene_file};
@@ -198,6 +198,30 @@ async fn hits_json_and_npy_are_byte_identical_to_the_command_line() {
         assert_eq!(header(&res, "content-type"), media);
         assert!(res.bytes().await.unwrap() == expected, "{accept:?}");
     }
+}
+
+/// CSV is offered through `Accept` like the other forms: asked for by name, by `text/*`
+/// or preferred by weight, and the bytes are the command line's, of a region too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hits_as_csv_through_accept_are_the_command_line_bytes() {
+    let app = TestApp::spawn().await;
+    let scene = shipped("cube.json");
+    let body = serde_json::to_vec(&scene).unwrap();
+    let expected = cli_output("hits", &scene, "h.csv", &[]);
+    for accept in ["text/csv", "text/*", "application/json;q=0.5, text/csv"] {
+        let res = app
+            .post_json("/v1/hits", body.clone(), &[("accept", accept)])
+            .await;
+        assert_eq!(res.status(), 200, "{accept}");
+        assert_eq!(header(&res, "content-type"), "text/csv", "{accept}");
+        assert!(res.bytes().await.unwrap() == expected, "{accept}");
+    }
+    let expected = cli_output("hits", &scene, "h.csv", &["--region", "3,2,20,9"]);
+    let res = app
+        .post_json("/v1/hits?region=3,2,20,9", body, &[("accept", "text/csv")])
+        .await;
+    assert_eq!(res.status(), 200);
+    assert!(res.bytes().await.unwrap() == expected);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
