@@ -49,7 +49,7 @@ pub fn parse(bytes: &[u8], limits: &Limits) -> Result<Scene, SceneError> {
         column: e.column(),
     };
     let mut de = serde_json::Deserializer::from_slice(bytes);
-    let value = match serde_path_to_error::deserialize::<_, Value>(&mut de) {
+    let (value, duplicates) = match super::strict_json::deserialize(&mut de) {
         Ok(v) => v,
         Err(e) => {
             let at = Pointer::root().join_path(e.path());
@@ -70,7 +70,7 @@ pub fn parse(bytes: &[u8], limits: &Limits) -> Result<Scene, SceneError> {
         }
     };
     de.end().map_err(|e| syntax(&e))?;
-    parse_value(value, limits)
+    super::strict_json::with_duplicates(duplicates, parse_value(value, limits))
 }
 
 /// Validates a scene already parsed as JSON.
@@ -190,7 +190,7 @@ fn read_document(value: Value, p: &mut Problems) -> Option<(SceneDoc, Failed)> {
         v
     };
     let version = required(p, "version")
-        .and_then(|v| take::<u32>(v, &root.key("version"), p))
+        .and_then(|v| take::<Integer>(v, &root.key("version"), p).map(u32::from))
         .unwrap_or(1);
     let image = required(p, "image").and_then(|v| take::<ImageDoc>(v, &root.key("image"), p));
     let image = image.unwrap_or(ImageDoc {
@@ -205,7 +205,8 @@ fn read_document(value: Value, p: &mut Problems) -> Option<(SceneDoc, Failed)> {
     let background =
         optional("background").and_then(|v| take::<Colour>(v, &root.key("background"), p));
     let ambient = optional("ambient").and_then(|v| take::<Colour>(v, &root.key("ambient"), p));
-    let max_depth = optional("max_depth").and_then(|v| take::<u32>(v, &root.key("max_depth"), p));
+    let max_depth = optional("max_depth")
+        .and_then(|v| take::<Integer>(v, &root.key("max_depth"), p).map(u32::from));
     let materials = match optional("materials") {
         None => BTreeMap::new(),
         Some(Value::Object(m)) => {
