@@ -1,7 +1,9 @@
 //! The scene document as it travels: serde types that *are* the wire format (SPEC §4).
 //!
 //! Strict: every struct refuses unknown fields, and `colour` may also be spelled
-//! `color`. These types say only what was written; [`super::validate`] checks what it
+//! `color`. As in the published JSON Schema, an integer is any number without a
+//! fractional part (`5.0` is 5), an optional member is either left out or given a value
+//! (never `null`), and no object repeats a key. These types say only what was written; [`super::validate`] checks what it
 //! means and turns it into a [`super::Scene`].
 //!
 //! ```json
@@ -26,23 +28,44 @@ pub type Colour = [f64; 3];
 #[serde(deny_unknown_fields)]
 pub struct SceneDoc {
     /// Format version; only 1 exists.
+    #[serde(deserialize_with = "whole")]
     pub version: u32,
     /// Image size, anti-aliasing and gamma.
     pub image: ImageDoc,
     /// The camera; the default looks along +z from the origin with f = 1.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub camera: Option<CameraDoc>,
     /// Colour of rays that hit nothing (default black).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub background: Option<Colour>,
     /// Ambient light (default black).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub ambient: Option<Colour>,
     /// Recursion depth of reflection and refraction (default 5).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present_whole",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub max_depth: Option<u32>,
     /// Named materials that objects refer to.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    #[serde(
+        default,
+        deserialize_with = "unique_keys",
+        skip_serializing_if = "BTreeMap::is_empty"
+    )]
     pub materials: BTreeMap<String, MaterialDoc>,
     /// The objects, in order (ties go to the earlier one).
     pub objects: Vec<ObjectDoc>,
@@ -56,14 +79,24 @@ pub struct SceneDoc {
 #[serde(deny_unknown_fields)]
 pub struct ImageDoc {
     /// Width in pixels.
+    #[serde(deserialize_with = "whole")]
     pub width: u32,
     /// Height in pixels.
+    #[serde(deserialize_with = "whole")]
     pub height: u32,
     /// `s`: `s × s` rays per pixel (default 1).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present_whole",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub samples: Option<u32>,
     /// When given, colours are raised to `1/gamma` before quantising.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub gamma: Option<f64>,
 }
 
@@ -72,13 +105,25 @@ pub struct ImageDoc {
 #[serde(deny_unknown_fields)]
 pub struct CameraDoc {
     /// Distance of the image plane (default 1).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub focal_length: Option<f64>,
     /// camera → world, as transform steps.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub transform: Option<Vec<StepDoc>>,
     /// camera → world from an eye, a target and an up vector.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub look_at: Option<LookAtDoc>,
 }
 
@@ -155,25 +200,53 @@ pub enum AxisName {
 #[serde(deny_unknown_fields)]
 pub struct MaterialDoc {
     /// Ambient reflectance (defaults to `diffuse`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub ambient: Option<Colour>,
     /// Diffuse reflectance (default 0.8 grey).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub diffuse: Option<Colour>,
     /// Specular reflectance (default black).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub specular: Option<Colour>,
     /// Phong exponent (default 32).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub shininess: Option<f64>,
     /// Mirror reflectance (default black).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub mirror: Option<Colour>,
     /// Transmittance (default black).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub transmission: Option<Colour>,
     /// Index of refraction (default 1.5).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub ior: Option<f64>,
 }
 
@@ -196,21 +269,41 @@ pub use crate::geometry::ShapeName;
 #[serde(deny_unknown_fields)]
 pub struct ObjectDoc {
     /// A unique name, reported in hit data.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub name: Option<String>,
     /// Which canonical shape.
     pub shape: ShapeName,
     /// Its material (default: the default material).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub material: Option<MaterialRefDoc>,
     /// object → world, applied in the listed order.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub transform: Option<Vec<StepDoc>>,
     /// Mesh vertices.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub positions: Option<Vec<Vec3>>,
     /// Mesh triangles, as indices into `positions`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "present_indices",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub indices: Option<Vec<[u32; 3]>>,
 }
 
@@ -246,6 +339,114 @@ pub enum LightDoc {
         #[serde(alias = "color")]
         colour: Colour,
     },
+}
+
+/// A `u32` as JSON Schema counts integers: any number without a fractional part, so
+/// `5`, `5.0` and `5e0` are all 5. Other values are refused with serde's own messages
+/// for a `u32` (`invalid type: floating point `5.5`, expected u32`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Integer(pub u32);
+
+impl From<Integer> for u32 {
+    fn from(i: Integer) -> u32 {
+        i.0
+    }
+}
+
+impl<'de> Deserialize<'de> for Integer {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = Integer;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("u32")
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> Result<Self::Value, E> {
+                u32::try_from(v)
+                    .map(Integer)
+                    .map_err(|_| E::invalid_value(de::Unexpected::Unsigned(v), &self))
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> Result<Self::Value, E> {
+                u32::try_from(v)
+                    .map(Integer)
+                    .map_err(|_| E::invalid_value(de::Unexpected::Signed(v), &self))
+            }
+            fn visit_f64<E: de::Error>(self, v: f64) -> Result<Self::Value, E> {
+                if v.fract() != 0.0 || !v.is_finite() {
+                    Err(E::invalid_type(de::Unexpected::Float(v), &self))
+                } else if (0.0..=f64::from(u32::MAX)).contains(&v) {
+                    // Whole and in range, so the conversion is exact.
+                    Ok(Integer(v as u32))
+                } else {
+                    Err(E::invalid_value(de::Unexpected::Float(v), &self))
+                }
+            }
+        }
+        d.deserialize_u32(V)
+    }
+}
+
+fn whole<'de, D: Deserializer<'de>>(d: D) -> Result<u32, D::Error> {
+    Integer::deserialize(d).map(u32::from)
+}
+
+/// An optional member that is there: `null` is not a way to leave it out (the schema
+/// gives each a type, and null is none of them). A `null` is refused with the member
+/// type's own message, e.g. `invalid type: null, expected f64`.
+fn present<'de, D, T>(d: D) -> Result<Option<T>, D::Error>
+where
+    D: Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    match Option::<T>::deserialize(d)? {
+        Some(t) => Ok(Some(t)),
+        None => Err(null_for::<T, D::Error>()),
+    }
+}
+
+/// The error `T` gives for a `null`.
+fn null_for<'de, T: Deserialize<'de>, E: de::Error>() -> E {
+    match T::deserialize(de::value::UnitDeserializer::<E>::new()) {
+        Err(e) => e,
+        Ok(_) => E::invalid_type(de::Unexpected::Unit, &"a value"),
+    }
+}
+
+fn present_whole<'de, D: Deserializer<'de>>(d: D) -> Result<Option<u32>, D::Error> {
+    present::<D, Integer>(d).map(|i| i.map(u32::from))
+}
+
+fn present_indices<'de, D: Deserializer<'de>>(d: D) -> Result<Option<Vec<[u32; 3]>>, D::Error> {
+    let indices = present::<D, Vec<[Integer; 3]>>(d)?;
+    Ok(indices.map(|t| t.into_iter().map(|tri| tri.map(u32::from)).collect()))
+}
+
+/// A map whose keys are unique: a repeated key is refused rather than replacing the
+/// value before it.
+fn unique_keys<'de, D, T>(d: D) -> Result<BTreeMap<String, T>, D::Error>
+where
+    D: Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    struct V<T>(std::marker::PhantomData<T>);
+    impl<'de, T: Deserialize<'de>> Visitor<'de> for V<T> {
+        type Value = BTreeMap<String, T>;
+        fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+            f.write_str("a map")
+        }
+        fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
+            let mut out = BTreeMap::new();
+            while let Some(key) = map.next_key::<String>()? {
+                if out.contains_key(&key) {
+                    return Err(de::Error::custom(format_args!("duplicate key `{key}`")));
+                }
+                let value = map.next_value()?;
+                out.insert(key, value);
+            }
+            Ok(out)
+        }
+    }
+    d.deserialize_map(V(std::marker::PhantomData))
 }
 
 // The untagged enums get hand-written visitors: serde's derived untagged errors say only

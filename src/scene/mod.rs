@@ -7,6 +7,7 @@
 pub mod document;
 pub mod limits;
 pub mod problem;
+mod strict_json;
 pub mod validate;
 
 use std::sync::Arc;

@@ -98,3 +98,172 @@ fn format_violations_fail_both() {
         v.is_valid(&base) && parse(&serde_json::to_vec(&base).unwrap(), &Limits::default()).is_ok()
     );
 }
+
+fn both(v: &jsonschema::Validator, d: &Value) -> (bool, bool) {
+    let parsed = parse(&serde_json::to_vec(d).unwrap(), &Limits::default());
+    (v.is_valid(d), parsed.is_ok())
+}
+
+fn base_with_mesh() -> Value {
+    json!({"version": 1, "image": {"width": 4, "height": 4},
+        "objects": [{"shape": "sphere"},
+            {"shape": "mesh", "positions": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], "indices": [[0, 1, 2]]}],
+        "lights": [{"type": "point", "position": [0, 0, 0], "colour": [1, 1, 1]}]})
+}
+
+#[test]
+fn whole_numbers_are_integers_for_both_and_fractions_are_not() {
+    let v = schema();
+    let whole: Vec<(&str, Edit)> = vec![
+        ("width 5.0", Box::new(|d| d["image"]["width"] = json!(5.0))),
+        (
+            "height 5.0",
+            Box::new(|d| d["image"]["height"] = json!(5.0)),
+        ),
+        (
+            "samples 2.0",
+            Box::new(|d| d["image"]["samples"] = json!(2.0)),
+        ),
+        ("max_depth 3.0", Box::new(|d| d["max_depth"] = json!(3.0))),
+        ("max_depth -0.0", Box::new(|d| d["max_depth"] = json!(-0.0))),
+        ("version 1.0", Box::new(|d| d["version"] = json!(1.0))),
+        (
+            "indices 0.0, 1.0, 2.0",
+            Box::new(|d| d["objects"][1]["indices"] = json!([[0.0, 1.0, 2.0]])),
+        ),
+    ];
+    for (what, edit) in whole {
+        let mut d = base_with_mesh();
+        edit(&mut d);
+        assert_eq!(both(&v, &d), (true, true), "{what}");
+    }
+    let fractional: Vec<(&str, Edit)> = vec![
+        ("width 5.5", Box::new(|d| d["image"]["width"] = json!(5.5))),
+        (
+            "height 0.5",
+            Box::new(|d| d["image"]["height"] = json!(0.5)),
+        ),
+        (
+            "samples 1.5",
+            Box::new(|d| d["image"]["samples"] = json!(1.5)),
+        ),
+        ("max_depth 2.5", Box::new(|d| d["max_depth"] = json!(2.5))),
+        ("version 1.5", Box::new(|d| d["version"] = json!(1.5))),
+        (
+            "indices 0.5",
+            Box::new(|d| d["objects"][1]["indices"] = json!([[0.5, 1, 2]])),
+        ),
+        (
+            "width beyond u32",
+            Box::new(|d| d["image"]["width"] = json!(4294967296u64)),
+        ),
+        (
+            "max_depth beyond u32",
+            Box::new(|d| d["max_depth"] = json!(4294967296.0)),
+        ),
+    ];
+    for (what, edit) in fractional {
+        let mut d = base_with_mesh();
+        edit(&mut d);
+        assert_eq!(both(&v, &d), (false, false), "{what}");
+    }
+}
+
+#[test]
+fn an_explicit_null_fails_both_wherever_a_field_may_be_left_out() {
+    let v = schema();
+    let mut full = base_with_mesh();
+    full["camera"] = json!({"focal_length": 1, "transform": []});
+    full["background"] = json!([0, 0, 0]);
+    full["ambient"] = json!([0, 0, 0]);
+    full["max_depth"] = json!(2);
+    full["image"]["samples"] = json!(1);
+    full["image"]["gamma"] = json!(2.2);
+    full["materials"] = json!({"m": {"ambient": [0, 0, 0], "diffuse": [0, 0, 0],
+        "specular": [0, 0, 0], "shininess": 1, "mirror": [0, 0, 0],
+        "transmission": [0, 0, 0], "ior": 1.5}});
+    full["objects"][0] = json!({"name": "s", "shape": "sphere", "material": "m", "transform": []});
+    full["objects"][1]["material"] = json!({"ior": 1.2});
+    assert_eq!(both(&v, &full), (true, true));
+    // Every member the format lets a document leave out.
+    let optional = [
+        "/camera",
+        "/camera/focal_length",
+        "/camera/transform",
+        "/camera/look_at",
+        "/background",
+        "/ambient",
+        "/max_depth",
+        "/materials",
+        "/lights",
+        "/image/samples",
+        "/image/gamma",
+        "/materials/m/ambient",
+        "/materials/m/diffuse",
+        "/materials/m/specular",
+        "/materials/m/shininess",
+        "/materials/m/mirror",
+        "/materials/m/transmission",
+        "/materials/m/ior",
+        "/objects/0/name",
+        "/objects/0/material",
+        "/objects/0/transform",
+        "/objects/1/material/ior",
+        "/objects/1/positions",
+        "/objects/1/indices",
+    ];
+    for pointer in optional {
+        let mut d = full.clone();
+        if pointer == "/camera/look_at" {
+            d["camera"] = json!({});
+        }
+        let (parent, key) = pointer.rsplit_once('/').unwrap();
+        d.pointer_mut(parent).unwrap()[key] = Value::Null;
+        assert_eq!(both(&v, &d), (false, false), "{pointer}: null");
+    }
+}
+
+#[test]
+fn duplicate_keys_fail_the_parser_and_the_schema_says_so() {
+    // JSON Schema sees a document after parsing, when one of two equal keys is already
+    // gone; its description says the server refuses them.
+    let text = br#"{"version": 1, "image": {"width": 4, "height": 4, "height": 4}, "objects": []}"#;
+    assert!(parse(text, &Limits::default()).is_err());
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("api/scene.schema.json");
+    let schema: Value = serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
+    let description = schema["description"].as_str().unwrap();
+    assert!(description.contains("duplicate keys"), "{description}");
+}
+
+/// Keywords that schema-driven generators (hypothesis-jsonschema, and so Schemathesis)
+/// cannot generate from: a schema that uses them yields no example at all.
+#[test]
+fn the_schema_uses_only_generable_keywords() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("api/scene.schema.json");
+    let schema: Value = serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
+    let mut found = Vec::new();
+    let mut stack = vec![(String::new(), &schema)];
+    while let Some((at, v)) = stack.pop() {
+        match v {
+            Value::Object(m) => {
+                for (k, child) in m {
+                    // Property names are data, not keywords.
+                    let is_keyword = !at.ends_with("/properties") && !at.ends_with("/$defs");
+                    if is_keyword
+                        && ["prefixItems", "if", "then", "else", "not"].contains(&k.as_str())
+                    {
+                        found.push(format!("{at}/{k}"));
+                    }
+                    stack.push((format!("{at}/{k}"), child));
+                }
+            }
+            Value::Array(items) => {
+                for (i, child) in items.iter().enumerate() {
+                    stack.push((format!("{at}/{i}"), child));
+                }
+            }
+            _ => {}
+        }
+    }
+    assert!(found.is_empty(), "{found:?}");
+}

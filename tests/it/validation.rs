@@ -229,3 +229,233 @@ fn garbage_never_panics() {
         assert!(parse(bytes, &Limits::default()).is_err());
     }
 }
+
+/// The problems found in `text`, as (pointer, message).
+fn problems_of(text: &str) -> Vec<(String, String)> {
+    match parse(text.as_bytes(), &Limits::default()) {
+        Ok(_) => vec![],
+        Err(SceneError::Invalid(p)) => p.into_iter().map(|p| (p.pointer, p.message)).collect(),
+        Err(e) => panic!("expected an invalid scene, got {e}"),
+    }
+}
+
+/// A mesh whose indices are written as `[[a, b, c]]`.
+fn with_mesh(indices: Value) -> Value {
+    let mut d = base();
+    push(
+        &mut d["objects"],
+        json!({"shape": "mesh", "positions": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], "indices": indices}),
+    );
+    d
+}
+
+#[test]
+fn whole_numbers_written_with_a_fraction_or_exponent_are_integers() {
+    let mut d = with_mesh(json!([[0.0, 1.0, 2.0]]));
+    d["version"] = json!(1.0);
+    d["image"]["width"] = json!(8.0);
+    d["image"]["samples"] = json!(2.0);
+    d["max_depth"] = json!(3.0);
+    let text = serde_json::to_string(&d)
+        .unwrap()
+        .replace(r#""height":6"#, r#""height":6e0"#);
+    assert!(text.contains("6e0"), "{text}");
+    let scene = parse(text.as_bytes(), &Limits::default()).unwrap();
+    assert_eq!(
+        (scene.width, scene.height, scene.samples, scene.max_depth),
+        (8, 6, 2, 3)
+    );
+    // The slow path, which reads part by part, agrees.
+    d["objects"][0]["material"] = json!("nope");
+    assert_eq!(pointers(&d, &Limits::default()), ["/objects/0/material"]);
+}
+
+#[test]
+fn integers_with_a_fractional_part_are_refused_at_their_pointer() {
+    let expect = |d: &Value, pointer: &str, message: &str| {
+        let found = problems_of(&serde_json::to_string(d).unwrap());
+        assert!(
+            found.iter().any(|(p, m)| p == pointer && m == message),
+            "expected {pointer}: {message} in {found:?}"
+        );
+    };
+    let mut d = base();
+    d["image"]["width"] = json!(5.5);
+    expect(
+        &d,
+        "/image/width",
+        "invalid type: floating point `5.5`, expected u32",
+    );
+    let mut d = base();
+    d["image"]["samples"] = json!(1.25);
+    expect(
+        &d,
+        "/image/samples",
+        "invalid type: floating point `1.25`, expected u32",
+    );
+    let mut d = base();
+    d["max_depth"] = json!(2.5);
+    expect(
+        &d,
+        "/max_depth",
+        "invalid type: floating point `2.5`, expected u32",
+    );
+    let mut d = base();
+    d["version"] = json!(1.5);
+    expect(
+        &d,
+        "/version",
+        "invalid type: floating point `1.5`, expected u32",
+    );
+    let d = with_mesh(json!([[0, 1.5, 2]]));
+    expect(
+        &d,
+        "/objects/1/indices/0/1",
+        "invalid type: floating point `1.5`, expected u32",
+    );
+    let mut d = base();
+    d["image"]["height"] = json!(-2.0);
+    expect(
+        &d,
+        "/image/height",
+        "invalid value: floating point `-2.0`, expected u32",
+    );
+}
+
+#[test]
+fn an_explicit_null_is_refused_wherever_a_field_is_optional() {
+    let mut full = with_mesh(json!([[0, 1, 2]]));
+    full["objects"][1]["name"] = json!("m");
+    full["objects"][1]["material"] = json!({"ior": 1.3});
+    full["objects"][1]["transform"] = json!([]);
+    for pointer in [
+        "/camera",
+        "/background",
+        "/ambient",
+        "/max_depth",
+        "/materials",
+        "/lights",
+        "/image/samples",
+        "/image/gamma",
+        "/camera/focal_length",
+        "/camera/transform",
+        "/camera/look_at",
+        "/materials/red/ambient",
+        "/materials/red/diffuse",
+        "/materials/red/specular",
+        "/materials/red/shininess",
+        "/materials/red/mirror",
+        "/materials/red/transmission",
+        "/materials/red/ior",
+        "/objects/0/name",
+        "/objects/0/material",
+        "/objects/0/transform",
+        "/objects/1/positions",
+        "/objects/1/indices",
+        "/objects/1/material/ior",
+        "/objects/1/material/diffuse",
+    ] {
+        let mut d = full.clone();
+        if pointer.starts_with("/camera/") {
+            d["camera"] = json!({});
+        }
+        let (parent, key) = pointer.rsplit_once('/').unwrap();
+        d.pointer_mut(parent).unwrap()[key] = Value::Null;
+        let found = problems_of(&serde_json::to_string(&d).unwrap());
+        assert!(
+            found
+                .iter()
+                .any(|(p, m)| p == pointer && m.starts_with("invalid type: null, expected ")),
+            "expected {pointer} to refuse null, got {found:?}"
+        );
+    }
+    assert!(pointers(&full, &Limits::default()).is_empty());
+}
+
+#[test]
+fn duplicate_keys_are_refused_at_the_duplicated_member() {
+    let cases = [
+        (
+            r#"{"version": 1, "image": {"width": 8, "height": 6, "width": 9}, "objects": []}"#,
+            "/image/width",
+            "duplicate key `width`",
+        ),
+        (
+            r#"{"version": 1, "image": {"width": 8, "height": 6}, "objects": [],
+               "materials": {"red": {}, "blue": {}, "red": {"ior": 2}}}"#,
+            "/materials/red",
+            "duplicate key `red`",
+        ),
+        (
+            r#"{"version": 1, "version": 1, "image": {"width": 8, "height": 6}, "objects": []}"#,
+            "/version",
+            "duplicate key `version`",
+        ),
+        (
+            r#"{"version": 1, "image": {"width": 8, "height": 6},
+               "objects": [{"shape": "cube"}, {"shape": "sphere", "shape": "sphere"}]}"#,
+            "/objects/1/shape",
+            "duplicate key `shape`",
+        ),
+        (
+            r#"{"version": 1, "image": {"width": 8, "height": 6}, "objects": [{"shape": "cube",
+               "transform": [{"translate": [0, 0, 1], "translate": [0, 0, 2]}]}]}"#,
+            "/objects/0/transform/0/translate",
+            "duplicate key `translate`",
+        ),
+        (
+            r#"{"version": 1, "image": {"width": 8, "height": 6}, "objects": [],
+               "lights": [{"type": "point", "position": [0, 0, 0], "colour": [1, 1, 1],
+                           "colour": [0, 0, 0]}]}"#,
+            "/lights/0/colour",
+            "duplicate key `colour`",
+        ),
+        (
+            r#"{"version": 1, "image": {"width": 8, "height": 6}, "objects": [],
+               "materials": {"a/b": {"ior": 1, "ior": 1}}}"#,
+            "/materials/a~1b/ior",
+            "duplicate key `ior`",
+        ),
+    ];
+    for (text, pointer, message) in cases {
+        let found = problems_of(text);
+        assert_eq!(
+            found,
+            [(pointer.to_string(), message.to_string())],
+            "in {text}"
+        );
+    }
+}
+
+#[test]
+fn duplicate_keys_are_reported_with_every_other_problem() {
+    let text = r#"{"version": 1, "image": {"width": 0, "height": 6, "height": 6},
+        "objects": [{"shape": "teapot"}], "objects": [{"shape": "sphere", "material": "nope"}]}"#;
+    let found: Vec<String> = problems_of(text).into_iter().map(|(p, _)| p).collect();
+    assert_eq!(
+        found,
+        [
+            "/image/height",
+            "/objects",
+            "/image/width",
+            "/objects/0/material"
+        ]
+    );
+}
+
+#[test]
+fn many_duplicate_keys_are_counted_past_the_listed_ones() {
+    let members: Vec<String> = (0..150).map(|_| r#""ior": 1"#.to_string()).collect();
+    let text = format!(
+        r#"{{"version": 1, "image": {{"width": 8, "height": 6}}, "objects": [],
+            "materials": {{"m": {{{}}}}}}}"#,
+        members.join(", ")
+    );
+    let found = problems_of(&text);
+    assert_eq!(found.len(), 101);
+    assert!(found[..100].iter().all(|(p, _)| p == "/materials/m/ior"));
+    assert_eq!(
+        found[100],
+        (String::new(), "49 more problems not listed".to_string())
+    );
+}

@@ -51,7 +51,7 @@ pub fn parse(bytes: &[u8], limits: &Limits) -> Result<Scene, SceneError> {
         column: e.column(),
     };
     let mut de = serde_json::Deserializer::from_slice(bytes);
-    let value = match serde_path_to_error::deserialize::<_, Value>(&mut de) {
+    let (value, duplicates) = match crate::scene::strict_json::deserialize(&mut de) {
         Ok(v) => v,
         Err(e) => {
             let at = Pointer::root().join_path(e.path());
@@ -72,7 +72,7 @@ pub fn parse(bytes: &[u8], limits: &Limits) -> Result<Scene, SceneError> {
         }
     };
     de.end().map_err(|e| syntax(&e))?;
-    parse_value(value, limits)
+    crate::scene::strict_json::with_duplicates(duplicates, parse_value(value, limits))
 }
 
 /// Validates a scene already parsed as JSON.

@@ -103,7 +103,7 @@ pub(super) fn read_document(value: Value, p: &mut Problems) -> Option<(SceneDoc,
         v
     };
     let version = required(p, "version")
-        .and_then(|v| take::<u32>(v, &root.key("version"), p))
+        .and_then(|v| take::<Integer>(v, &root.key("version"), p).map(u32::from))
         .unwrap_or(1);
     let image = required(p, "image").and_then(|v| take::<ImageDoc>(v, &root.key("image"), p));
     let image = image.unwrap_or(ImageDoc {
@@ -118,7 +118,8 @@ pub(super) fn read_document(value: Value, p: &mut Problems) -> Option<(SceneDoc,
     let background =
         optional("background").and_then(|v| take::<Colour>(v, &root.key("background"), p));
     let ambient = optional("ambient").and_then(|v| take::<Colour>(v, &root.key("ambient"), p));
-    let max_depth = optional("max_depth").and_then(|v| take::<u32>(v, &root.key("max_depth"), p));
+    let max_depth = optional("max_depth")
+        .and_then(|v| take::<Integer>(v, &root.key("max_depth"), p).map(u32::from));
     let materials = match optional("materials") {
         None => BTreeMap::new(),
         Some(Value::Object(m)) => {
