@@ -32,7 +32,7 @@ pub const DEFAULT_HEADER_TIMEOUT_SECONDS: f64 = 10.0;
 /// connection we closed.
 pub const DEFAULT_IDLE_TIMEOUT_SECONDS: f64 = 75.0;
 
-/// `raytile serve`: the HTTP service (SPEC §6–7).
+/// `raytile serve`: the HTTP service (`docs/spec/http.md`).
 #[derive(Debug, Clone, clap::Args)]
 pub struct ServeArgs {
     /// Address and port to listen on (port 0 picks a free one).

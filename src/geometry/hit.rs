@@ -18,7 +18,7 @@ pub struct Hit {
 
 impl Hit {
     /// Whether `self` ranks before `other`: smaller `λ`, ties to the object listed first
-    /// (SPEC §2.4), then to the lower part index.
+    /// (`docs/spec/shapes.md`, Which hit counts), then to the lower part index.
     #[inline]
     pub fn before(&self, other: &Hit) -> bool {
         self.lambda < other.lambda
@@ -27,7 +27,7 @@ impl Hit {
     }
 }
 
-/// A cube face, as SPEC §2.2 names them.
+/// A cube face, as `docs/spec/shapes.md` names them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Face {
     /// `x = +1`.
@@ -87,7 +87,7 @@ impl Face {
     }
 }
 
-/// Everything known about the closest hit: SPEC §5's hit data.
+/// Everything known about the closest hit: the hit data of `docs/spec/hit-data.md`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Surface {
     /// The ray parameter along the ray's own (unnormalised) direction.
@@ -98,7 +98,7 @@ pub struct Surface {
     pub point: DVec3,
     /// Object-space point.
     pub object_point: DVec3,
-    /// Unit world-space normal as reported (SPEC §2.2): outward for closed shapes, facing
+    /// Unit world-space normal as reported (`docs/spec/shapes.md`, Normals): outward for closed shapes, facing
     /// the ray's origin for open surfaces.
     pub normal: DVec3,
     /// Whether the ray arrives from the outside of the reported normal (`d · n < 0`).

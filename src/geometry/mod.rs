@@ -1,4 +1,4 @@
-//! Geometry exactly as the course teaches it (SPEC §2): rays with unnormalised
+//! Geometry exactly as the course teaches it (`docs/spec/`): rays with unnormalised
 //! directions, affine transforms with their inverses, the canonical shapes, bounding
 //! boxes, the BVH, and the world that finds a ray's first hit.
 

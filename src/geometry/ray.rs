@@ -1,7 +1,7 @@
 //! Rays `p(λ) = origin + λ · dir` with an unnormalised direction.
 //!
 //! `λ` is the lecture's parameter: for a primary ray it is measured along the `d` of
-//! SPEC §2.1, which is not unit length. Affine maps carry a ray without changing `λ`.
+//! `docs/spec/camera.md`, which is not unit length. Affine maps carry a ray without changing `λ`.
 
 use glam::{DAffine3, DVec3};
 
@@ -36,8 +36,8 @@ impl Ray {
     }
 }
 
-/// The smallest `λ` a primary ray's hit may have: in front of the projection point (SPEC §2.4).
+/// The smallest `λ` a primary ray's hit may have: in front of the projection point (`docs/spec/shapes.md`, Which hit counts).
 pub const PRIMARY_LAMBDA_MIN: f64 = 1e-9;
 
-/// Below this `|Δ|` a ray is parallel to a face and the face is skipped (SPEC §2.2).
+/// Below this `|Δ|` a ray is parallel to a face and the face is skipped (`docs/spec/shapes.md`).
 pub const PARALLEL_EPSILON: f64 = 1e-12;

@@ -1,7 +1,7 @@
 //! Affine transforms between spaces, kept together with their inverses.
 //!
 //! A scene's `transform` list is applied in the listed order, so the first step acts
-//! on the canonical shape first: `T = S_n · … · S_2 · S_1` (SPEC §2.3). The inverse is
+//! on the canonical shape first: `T = S_n · … · S_2 · S_1` (`docs/spec/transforms.md`). The inverse is
 //! built from the inverses of the steps in reverse order (a rotation's inverse is its
 //! transpose, a scale's is `1/s`), which keeps the lecture's simple cases exact: the
 //! inverse of a translation by `(1, 0, 2)` is exactly a translation by `(−1, 0, −2)`.
@@ -100,7 +100,7 @@ impl Transform {
         self.forward.is_finite() && self.inverse.is_finite()
     }
 
-    /// Carries a normal: `normalize((M⁻¹)ᵀ n)` with the 3 × 3 part (SPEC §2.2).
+    /// Carries a normal: `normalize((M⁻¹)ᵀ n)` with the 3 × 3 part (`docs/spec/shapes.md`, Normals).
     pub fn normal(&self, n: DVec3) -> DVec3 {
         self.inverse.matrix3.transpose().mul_vec3(n).normalize()
     }

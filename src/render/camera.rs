@@ -1,4 +1,4 @@
-//! Primary rays exactly as SPEC §2.1 writes them:
+//! Primary rays exactly as `docs/spec/camera.md` writes them:
 //! `p(λ) = [0,0,0,1] + λ [−1 + x·2/w, −h/w + y·2/w, f, 0]` with `x = u + ½`, `y = v + ½`
 //! at a pixel's centre, then carried into world space by `world_from_camera`.
 

@@ -95,7 +95,7 @@ impl Kernel for ColourKernel<'_> {
     }
 }
 
-/// Reports each pixel's first hit (SPEC §5).
+/// Reports each pixel's first hit (`docs/spec/hit-data.md`).
 pub struct HitKernel<'a>(pub &'a Renderer);
 
 impl Kernel for HitKernel<'_> {

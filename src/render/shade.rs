@@ -1,4 +1,4 @@
-//! Whitted ray tracing with the Phong model (SPEC §3).
+//! Whitted ray tracing with the Phong model (`docs/spec/shading.md`).
 //!
 //! ```text
 //! colour = ambient ⊙ m.ambient

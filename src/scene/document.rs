@@ -1,4 +1,4 @@
-//! The scene document as it travels: serde types that *are* the wire format (SPEC §4).
+//! The scene document as it travels: serde types that *are* the wire format (`docs/spec/scene.md`).
 //!
 //! Strict: every struct refuses unknown fields, and `colour` may also be spelled
 //! `color`. As in the published JSON Schema, an integer is any number without a
@@ -195,7 +195,7 @@ pub enum AxisName {
     Z,
 }
 
-/// A material; every field optional (SPEC §3 gives the defaults).
+/// A material; every field optional (`docs/spec/shading.md` gives the defaults).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MaterialDoc {
@@ -260,7 +260,7 @@ pub enum MaterialRefDoc {
     Inline(MaterialDoc),
 }
 
-/// The shapes of SPEC §2.2, by the names documents use. The list lives with the shapes
+/// The shapes of `docs/spec/shapes.md`, by the names documents use. The list lives with the shapes
 /// (`crate::geometry::shapes`), so a new shape is a name here too.
 pub use crate::geometry::ShapeName;
 

@@ -99,7 +99,7 @@ pub struct Object {
     pub material: u32,
 }
 
-/// A material with every default applied (SPEC §3).
+/// A material with every default applied (`docs/spec/shading.md`, Materials).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Material {
     /// Ambient reflectance.

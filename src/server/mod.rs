@@ -1,4 +1,4 @@
-//! The HTTP service (SPEC §6–7): axum on tokio in front of the renderer on rayon.
+//! The HTTP service (`docs/spec/http.md`): axum on tokio in front of the renderer on rayon.
 //! Tokio's threads only move bytes; tracing runs on a rayon pool of `--threads`.
 //!
 //! Where to start reading:

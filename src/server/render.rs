@@ -61,7 +61,7 @@ impl Offers for PngOnly {
     const OFFERS: &'static [&'static str] = &[png::MEDIA_TYPE];
 }
 
-/// What `/v1/hits` answers with, the default first (SPEC §5).
+/// What `/v1/hits` answers with, the default first (`docs/spec/hit-data.md`, Formats).
 #[derive(Debug, Clone, Copy)]
 pub struct HitTypes;
 

@@ -1,4 +1,4 @@
-//! Every class of bad document SPEC §4 lists is refused, each problem with its pointer.
+//! Every class of bad document `docs/spec/scene.md` lists is refused, each problem with its pointer.
 
 use raytile::scene::{Limits, SceneError, parse};
 use serde_json::{Value, json};

@@ -1,4 +1,4 @@
-//! The canonical shapes of SPEC §2.2, each in its own object space, one file each.
+//! The canonical shapes of `docs/spec/shapes.md`, each in its own object space, one file each.
 //!
 //! Every test takes a ray already carried into object space and returns the smallest
 //! `λ` in `(t_min, t_max)` with the *part* that was hit (a cube face, a cap, a
