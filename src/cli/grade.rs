@@ -42,7 +42,12 @@ pub struct TraceArgs {
     /// Which objects each ray is shown tested against.
     #[arg(long, value_enum, default_value_t = CandidatesArg::Auto)]
     candidates: CandidatesArg,
-    /// Most triangle tests listed per mesh and ray (hits are always listed).
+    /// Most object tests listed per ray, 0–1024 (the chosen hit's is listed besides).
+    #[arg(long, default_value_t = ExplainOptions::default().max_tests,
+          value_parser = parse_max_tests)]
+    max_tests: usize,
+    /// Most triangle misses, and other hits, listed per mesh and ray (the hit that
+    /// counts is always listed).
     #[arg(long, default_value_t = ExplainOptions::default().max_triangles)]
     max_triangles: usize,
     /// Most rays (primary, reflected, refracted) broken down.
@@ -106,6 +111,14 @@ fn parse_pixel(s: &str) -> Result<(u32, u32), String> {
     Ok((n(u)?, n(v)?))
 }
 
+/// Parses `--max-tests`: a whole number 0–1024, as `/v1/trace` allows.
+fn parse_max_tests(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(n) if n <= 1024 => Ok(n),
+        _ => Err(format!("expected a whole number from 0 to 1024, got `{s}`")),
+    }
+}
+
 fn renderer(scene: &Path) -> anyhow::Result<Renderer> {
     Ok(Renderer::new(Arc::new(load_scene(scene)?)))
 }
@@ -121,6 +134,7 @@ pub fn trace(a: TraceArgs) -> anyhow::Result<ExitCode> {
             CandidatesArg::All => Candidates::All,
             CandidatesArg::Bvh => Candidates::Bvh,
         },
+        max_tests: a.max_tests,
         max_triangles: a.max_triangles,
         max_rays: a.max_rays,
     };

@@ -10,7 +10,9 @@
 //!
 //! Query: `u`, `v` (required: column and row from the top left), `format` (`json` or
 //! `text`; without it `Accept` decides, JSON first), `candidates` (`auto`, `all`, `bvh`),
-//! `max_triangles`, `max_rays`, as on the command line. Any other parameter is an error.
+//! `max_tests`, `max_triangles`, `max_rays`, as on the command line. Any other parameter
+//! is an error. The answer is bounded whatever they are (see
+//! [`explain::MAX_ENTRIES`]): what it leaves out it counts, under `truncation`.
 //!
 //! Everything that can fail is decided before a render slot is taken: the query (400),
 //! the scene (415, 413, 400, 422, as for `/v1/render`), a pixel outside the image (422,
@@ -45,7 +47,8 @@ pub fn router() -> Router<AppState> {
 /// `; charset=utf-8`).
 pub const TRACE_TYPES: &[&str] = &["application/json", "text/plain"];
 
-/// Largest `max_rays` and `max_triangles` a request may ask for: an explanation grows
+/// Largest `max_rays`, `max_tests` and `max_triangles` a request may ask for: an
+/// explanation grows
 /// with both, and it is built in memory before it is sent.
 pub const MAX_LISTED: usize = 1024;
 
@@ -54,7 +57,7 @@ pub const MAX_LISTED: usize = 1024;
 /// than building an answer of gigabytes for a scene of a million objects.
 pub const MAX_ALL_TESTS: usize = 65_536;
 
-/// `?u=U&v=V[&format=json|text][&candidates=auto|all|bvh][&max_triangles=N][&max_rays=N]`.
+/// `?u=U&v=V[&format=json|text][&candidates=auto|all|bvh][&max_tests=N][&max_triangles=N][&max_rays=N]`.
 #[derive(Debug, Clone)]
 pub struct TraceQuery {
     /// Column.
@@ -72,7 +75,7 @@ impl<S: Send + Sync> FromRequestParts<S> for TraceQuery {
 
     async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, ApiError> {
         let (mut u, mut v, mut form, mut candidates) = (None, None, None, None);
-        let (mut max_triangles, mut max_rays) = (None, None);
+        let (mut max_tests, mut max_triangles, mut max_rays) = (None, None, None);
         let whole = "a whole number ≥ 0";
         for (k, value) in query_pairs(&parts.uri)? {
             match k.as_str() {
@@ -101,6 +104,7 @@ impl<S: Send + Sync> FromRequestParts<S> for TraceQuery {
                     )?;
                     once(&mut candidates, "candidates", c)?;
                 }
+                "max_tests" => once(&mut max_tests, "max_tests", listed("max_tests", &value)?)?,
                 "max_triangles" => once(
                     &mut max_triangles,
                     "max_triangles",
@@ -110,7 +114,7 @@ impl<S: Send + Sync> FromRequestParts<S> for TraceQuery {
                 other => {
                     return Err(ApiError::BadRequest(format!(
                         "unknown query parameter `{other}`: this route takes `u`, `v`, `format`, \
-                         `candidates`, `max_triangles` and `max_rays`"
+                         `candidates`, `max_tests`, `max_triangles` and `max_rays`"
                     )));
                 }
             }
@@ -127,6 +131,7 @@ impl<S: Send + Sync> FromRequestParts<S> for TraceQuery {
             form,
             options: ExplainOptions {
                 candidates: candidates.unwrap_or(defaults.candidates),
+                max_tests: max_tests.unwrap_or(defaults.max_tests),
                 max_triangles: max_triangles.unwrap_or(defaults.max_triangles),
                 max_rays: max_rays.unwrap_or(defaults.max_rays),
             },

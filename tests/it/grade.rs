@@ -607,3 +607,73 @@ fn bad_submissions_exit_2_with_one_clear_line() {
         assert!(out.stdout.is_empty(), "{name}");
     }
 }
+
+// ---------------------------------------------------------------------------------------
+// trace: bounded answers
+
+#[test]
+fn trace_of_many_coincident_spheres_is_bounded_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let objects = vec![serde_json::json!({"shape": "sphere", "material": "glass"}); 20_000];
+    let scene = serde_json::json!({
+        "version": 1,
+        "image": {"width": 5, "height": 5},
+        "camera": {"focal_length": 1},
+        "max_depth": 10,
+        "materials": {"glass": {"mirror": [0.5, 0.5, 0.5], "transmission": [0.5, 0.5, 0.5]}},
+        "objects": objects,
+        "lights": [{"type": "point", "position": [0, -4, 0], "colour": [1, 1, 1]}]
+    });
+    let path = write(&dir, "many.json", &serde_json::to_vec(&scene).unwrap());
+    for (format, limit) in [("json", 2_400_000), ("text", 1_000_000)] {
+        let out = run(&[
+            "trace",
+            s(&path),
+            "--pixel",
+            "2,2",
+            "--candidates",
+            "bvh",
+            "--max-rays",
+            "100000",
+            "--max-triangles",
+            "100000",
+            "--max-tests",
+            "1024",
+            "--format",
+            format,
+        ]);
+        assert!(out.status.success(), "{}", stderr(&out));
+        assert!(
+            out.stdout.len() < limit,
+            "{format}: {} bytes",
+            out.stdout.len()
+        );
+        if format == "json" {
+            let e = stdout_json(&out);
+            assert_eq!(e["truncated"], true);
+            assert!(e["truncation"]["budget_spent_at"]["pointer"].is_string());
+        } else {
+            let text = String::from_utf8_lossy(&out.stdout);
+            assert!(text.contains("Shortened to stay readable"), "{text}");
+            assert!(text.contains("size budget of 2097152 bytes"), "{text}");
+        }
+    }
+}
+
+#[test]
+fn trace_refuses_max_tests_out_of_range() {
+    let out = run(&[
+        "trace",
+        s(&scene("lecture.json")),
+        "--pixel",
+        "2,2",
+        "--max-tests",
+        "1025",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        stderr(&out).contains("expected a whole number from 0 to 1024, got `1025`"),
+        "{}",
+        stderr(&out)
+    );
+}

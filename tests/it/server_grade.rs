@@ -954,3 +954,105 @@ async fn saturated_trace_and_grade_are_503_but_bad_requests_still_4xx() {
     )
     .await;
 }
+
+// ---- trace: bounded answers ------------------------------------------------------------
+
+/// `n` identical unit spheres around the camera, of one mirror-and-glass material: every
+/// ray of a pixel's tree is a candidate ray of every sphere.
+fn coincident_spheres(n: usize) -> Value {
+    let objects = vec![json!({"shape": "sphere", "material": "glass"}); n];
+    json!({
+        "version": 1,
+        "image": {"width": 5, "height": 5},
+        "camera": {"focal_length": 1},
+        "max_depth": 10,
+        "materials": {"glass": {
+            "diffuse": [0.1, 0.1, 0.1],
+            "mirror": [0.5, 0.5, 0.5],
+            "transmission": [0.5, 0.5, 0.5],
+            "ior": 1.5
+        }},
+        "objects": objects,
+        "lights": [{"type": "point", "position": [0, -4, 0], "colour": [1, 1, 1]}]
+    })
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn trace_answers_are_bounded_in_every_candidates_mode() {
+    let app = TestApp::spawn().await;
+    let largest = "max_rays=1024&max_triangles=1024&max_tests=1024";
+    for n in [2_000, 20_000] {
+        let scene = coincident_spheres(n);
+        // `all` lists every object for every ray only up to 65 536 tests: 3 rays here.
+        for q in [
+            format!("candidates=auto&{largest}"),
+            format!("candidates=bvh&{largest}"),
+            "candidates=all&max_rays=3&max_tests=1024&max_triangles=1024".to_owned(),
+            "candidates=bvh&max_rays=1024&format=text".to_owned(),
+        ] {
+            let res = app
+                .post_scene(&format!("/v1/trace?u=2&v=2&{q}"), &scene)
+                .await;
+            assert_eq!(res.status(), 200, "{n} {q}");
+            let body = res.bytes().await.unwrap();
+            // The budget is 2 MiB of the JSON answer; the text of it is smaller.
+            assert!(body.len() < 2_400_000, "{n} {q}: {} bytes", body.len());
+            if q.ends_with("text") {
+                let text = String::from_utf8_lossy(&body);
+                assert!(text.contains("Shortened to stay readable"), "{n} {q}");
+                assert!(text.contains("more objects tested, not listed"), "{n} {q}");
+                continue;
+            }
+            let e: Value = serde_json::from_slice(&body).unwrap();
+            assert_eq!(e["truncated"], true, "{n} {q}");
+            let t = &e["truncation"];
+            assert!(t["tests_unlisted"].as_u64().unwrap() > 0, "{n} {q}");
+            assert_eq!(t["max_bytes"], 2 * 1024 * 1024);
+            assert_eq!(e["tree"]["tested"], n);
+            let listed = e["tree"]["tests"].as_array().unwrap().len();
+            assert!(listed <= 1025, "{n} {q}");
+            assert_eq!(e["tree"]["tests_unlisted"], n - listed, "{n} {q}");
+            if q.starts_with("candidates=all") {
+                assert_eq!(e["candidates"], "all");
+            } else {
+                // The budget ran out, and the answer says at which ray.
+                let at = &t["budget_spent_at"];
+                assert!(at["pointer"].as_str().unwrap().starts_with("/tree"), "{at}");
+                assert!(at["ray"].as_u64().unwrap() >= 1, "{at}");
+            }
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn trace_max_tests_is_checked() {
+    let app = TestApp::spawn().await;
+    let lecture = serde_json::to_vec(&shipped("lecture.json")).unwrap();
+    for q in [
+        "max_tests=1025",
+        "max_tests=-1",
+        "max_tests=x",
+        "max_tests=1&max_tests=2",
+    ] {
+        let doc = problem(
+            app.post_json(&format!("/v1/trace?u=2&v=2&{q}"), lecture.clone(), &[])
+                .await,
+            400,
+            "bad-request",
+        )
+        .await;
+        assert!(
+            doc["detail"].as_str().unwrap().contains("max_tests"),
+            "{q}: {doc}"
+        );
+    }
+    let res = app
+        .post_json("/v1/trace?u=2&v=2&max_tests=0", lecture.clone(), &[])
+        .await;
+    assert_eq!(res.status(), 200);
+    let e: Value = res.json().await.unwrap();
+    // The chosen hit's test is always listed.
+    assert_eq!(e["tree"]["tests"].as_array().unwrap().len(), 1);
+    assert_eq!(e["truncation"]["max_tests"], 0);
+    assert_eq!(e["truncated"], false);
+}

@@ -36,7 +36,7 @@ use crate::render::{RayCount, Renderer, quantise};
 pub use model::{
     Blocker, Explanation, FaceCheck, FinalColour, HitInfo, ImageInfo, LightInfo, MaterialInfo,
     ObjectTest, PrimaryRay, Quadratic, Ray4, RayNode, Role, Root, Sample, Secondary, Shading,
-    TriangleCheck,
+    SpentAt, TriangleCheck, Truncation,
 };
 pub use recorder::part_label;
 use recorder::{Explainer, Recorder};
@@ -45,6 +45,17 @@ pub use text::to_text;
 /// Scenes with at most this many objects are explained against every object by default;
 /// larger ones against the BVH's candidates only.
 pub const AUTO_ALL_MAX_OBJECTS: usize = 64;
+
+/// Most bytes the ray tree of an explanation takes in its JSON answer (as printed, pretty),
+/// counted as it is written: each object test and light by its size, each ray by an
+/// estimate of its own fields. Once spent, nothing more is listed but each ray's place,
+/// colour and chosen hit; the tracer still shades the pixel, so the colours stay exact.
+/// An answer thus stays about this size (a few megabytes, the text form less) however
+/// large the scene and whatever the options; what a person reads is far less.
+pub const MAX_ANSWER_BYTES: usize = 2 << 20;
+
+/// Most lights listed per hit; the others are shaded all the same.
+pub const MAX_LIGHTS_LISTED: usize = 64;
 
 /// Which objects each ray of the explanation is tested against.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -63,9 +74,13 @@ pub enum Candidates {
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ExplainOptions {
-    /// Which objects are listed for each ray.
+    /// Which objects are tested for each ray.
     pub candidates: Candidates,
-    /// At most this many triangle tests are listed per mesh and ray (hits always are).
+    /// At most this many object tests are listed per ray (the chosen hit's always is);
+    /// the others are counted.
+    pub max_tests: usize,
+    /// At most this many triangle misses, and as many other hits, are listed per mesh and
+    /// ray (the hit that counts always is).
     pub max_triangles: usize,
     /// At most this many rays (primary, reflected, refracted) are expanded; deeper ones
     /// still contribute their exact colour but are not broken down.
@@ -76,6 +91,7 @@ impl Default for ExplainOptions {
     fn default() -> Self {
         ExplainOptions {
             candidates: Candidates::Auto,
+            max_tests: AUTO_ALL_MAX_OBJECTS,
             max_triangles: 16,
             max_rays: 64,
         }
@@ -139,6 +155,7 @@ pub fn explain(r: &Renderer, u: u32, v: u32, opts: &ExplainOptions) -> Explanati
         &mut recorder,
     );
     let tree = recorder.finish(centre);
+    let left_out = ex.left_out();
 
     let mut notes = Vec::new();
     let s = scene.samples;
@@ -173,6 +190,27 @@ pub fn explain(r: &Renderer, u: u32, v: u32, opts: &ExplainOptions) -> Explanati
             "Only the first {} rays are broken down; the colours of the others are the \
              tracer's, exactly.",
             opts.max_rays.max(1)
+        ));
+    }
+    if let Some(at) = &left_out.spent_at {
+        notes.push(format!(
+            "The answer's size budget ({MAX_ANSWER_BYTES} bytes) ran out at ray {} ({}): \
+             nothing more is listed, and the rays traced after it are not broken down; \
+             their colours are the tracer's, exactly.",
+            at.ray, at.pointer
+        ));
+    }
+    if left_out.tests_unlisted > 0 {
+        notes.push(format!(
+            "{} object tests are not listed: at most {} per ray are (and the chosen hit's).",
+            left_out.tests_unlisted, opts.max_tests
+        ));
+    }
+    if left_out.lights_unlisted > 0 {
+        notes.push(format!(
+            "{} lights at hits are not listed: at most {MAX_LIGHTS_LISTED} per hit are; \
+             their terms are in the colours all the same.",
+            left_out.lights_unlisted
         ));
     }
     if mode == Candidates::Bvh {
@@ -223,6 +261,24 @@ pub fn explain(r: &Renderer, u: u32, v: u32, opts: &ExplainOptions) -> Explanati
             hex: format!("#{:02x}{:02x}{:02x}", rgb8[0], rgb8[1], rgb8[2]),
         },
         tree,
+        truncated: left_out.spent_at.is_some()
+            || left_out.rays_not_broken_down > 0
+            || left_out.tests_unlisted > 0
+            || left_out.triangles_unlisted > 0
+            || left_out.lights_unlisted > 0,
+        truncation: Truncation {
+            max_rays: opts.max_rays.max(1),
+            max_tests: opts.max_tests,
+            max_triangles: opts.max_triangles,
+            max_lights: MAX_LIGHTS_LISTED,
+            max_bytes: MAX_ANSWER_BYTES,
+            bytes: left_out.bytes,
+            rays_not_broken_down: left_out.rays_not_broken_down,
+            tests_unlisted: left_out.tests_unlisted,
+            triangles_unlisted: left_out.triangles_unlisted,
+            lights_unlisted: left_out.lights_unlisted,
+            budget_spent_at: left_out.spent_at,
+        },
         notes,
     }
 }
@@ -407,5 +463,178 @@ mod tests {
         let r = renderer("lecture.json");
         assert!(check_pixel(&r, 4, 4).is_ok());
         assert!(check_pixel(&r, 5, 0).is_err());
+    }
+
+    /// `n` identical unit spheres around the camera, of one mirror-and-glass material, and
+    /// `lights` point lights: every ray of the tree is a candidate ray of every sphere.
+    pub(super) fn coincident_spheres(n: usize, lights: usize, max_depth: u32) -> Renderer {
+        let objects: Vec<_> = (0..n)
+            .map(|_| serde_json::json!({"shape": "sphere", "material": "glass"}))
+            .collect();
+        let lights: Vec<_> = (0..lights)
+            .map(|i| {
+                serde_json::json!({
+                    "type": "point",
+                    "position": [0.01 * i as f64, -4, 0],
+                    "colour": [0.01, 0.01, 0.01]
+                })
+            })
+            .collect();
+        let scene = serde_json::json!({
+            "version": 1,
+            "image": {"width": 5, "height": 5},
+            "camera": {"focal_length": 1},
+            "max_depth": max_depth,
+            "materials": {"glass": {
+                "diffuse": [0.1, 0.1, 0.1],
+                "mirror": [0.5, 0.5, 0.5],
+                "transmission": [0.5, 0.5, 0.5],
+                "ior": 1.5
+            }},
+            "objects": objects,
+            "lights": lights
+        });
+        let bytes = serde_json::to_vec(&scene).unwrap();
+        Renderer::new(Arc::new(parse(&bytes, &Limits::NONE).unwrap()))
+    }
+
+    /// Every node of a tree, depth first.
+    pub(super) fn nodes(n: &RayNode) -> Vec<&RayNode> {
+        let mut out = vec![n];
+        if let Some(s) = &n.shading {
+            for sec in [&s.reflection, &s.refraction].into_iter().flatten() {
+                out.extend(nodes(&sec.ray));
+            }
+        }
+        out
+    }
+
+    /// The largest options a request may ask for, in every candidates mode.
+    fn largest(candidates: Candidates) -> ExplainOptions {
+        ExplainOptions {
+            candidates,
+            max_tests: 1024,
+            max_triangles: 1024,
+            max_rays: 1024,
+        }
+    }
+
+    /// The answer stays within its size budget whatever the number of objects and the
+    /// candidates mode, and keeps the tracer's colour.
+    #[test]
+    fn the_answer_is_bounded_whatever_the_scene() {
+        for n in [2_000, 20_000] {
+            let r = coincident_spheres(n, 1, 10);
+            for mode in [Candidates::Auto, Candidates::All, Candidates::Bvh] {
+                let e = explain(&r, 2, 2, &largest(mode));
+                let json = serde_json::to_vec_pretty(&e).unwrap();
+                assert!(
+                    json.len() < MAX_ANSWER_BYTES + MAX_ANSWER_BYTES / 8,
+                    "{n} spheres, {mode:?}: {} bytes",
+                    json.len()
+                );
+                assert!(e.truncated, "{n} {mode:?}");
+                let t = &e.truncation;
+                assert!(t.bytes >= MAX_ANSWER_BYTES, "{n} {mode:?}");
+                let at = t.budget_spent_at.as_ref().unwrap();
+                assert!(at.pointer.starts_with("/tree"), "{}", at.pointer);
+                assert!(t.tests_unlisted > 0 && t.rays_not_broken_down > 0);
+                let shader = Shader {
+                    scene: &r.scene,
+                    world: &r.world,
+                };
+                let centre = shader.trace(
+                    &r.camera.pixel_centre(2, 2),
+                    0,
+                    PRIMARY_LAMBDA_MIN,
+                    &mut RayCount(0),
+                );
+                assert_eq!(bits(e.tree.colour), bits(centre.to_array()));
+                let all = nodes(&e.tree);
+                let listed: usize = all.iter().map(|n| n.tests.len()).sum();
+                let unlisted: usize = all.iter().map(|n| n.tests_unlisted).sum();
+                assert_eq!(unlisted, t.tests_unlisted);
+                for node in all.iter().filter(|n| !n.truncated) {
+                    assert_eq!(node.tested, n, "{mode:?}: every sphere is a candidate");
+                    assert_eq!(node.tests.len() + node.tests_unlisted, node.tested);
+                }
+                assert!(listed <= 1024 * 8, "{listed} tests listed");
+            }
+        }
+    }
+
+    /// By default each ray lists at most `max_tests` objects and the chosen one; the
+    /// others are counted, in the ray and in the whole.
+    #[test]
+    fn each_ray_lists_at_most_max_tests_and_the_chosen_hit() {
+        let r = coincident_spheres(20_000, 1, 3);
+        let opts = ExplainOptions {
+            candidates: Candidates::Bvh,
+            ..Default::default()
+        };
+        let e = explain(&r, 2, 2, &opts);
+        assert!(e.truncation.budget_spent_at.is_none());
+        let all = nodes(&e.tree);
+        assert!(all.len() > 3, "a tree of depth 3");
+        for node in &all {
+            assert!(node.tests.len() <= opts.max_tests + 1);
+            if let Some(h) = &node.hit {
+                assert!(node.tests.iter().any(|t| t.chosen && t.object == h.object));
+                assert_eq!(node.tested, 20_000);
+            }
+            assert_eq!(node.tests_unlisted, node.tested - node.tests.len());
+            assert!(node.tests.windows(2).all(|w| w[0].object < w[1].object));
+        }
+        assert_eq!(
+            e.truncation.tests_unlisted,
+            all.iter().map(|n| n.tests_unlisted).sum::<usize>()
+        );
+        assert!(
+            e.notes
+                .iter()
+                .any(|n| n.contains("object tests are not listed"))
+        );
+        let text = to_text(&e);
+        assert!(
+            text.contains("more objects tested, not listed: at most 64 are listed per ray"),
+            "{text}"
+        );
+        assert!(text.contains("Shortened to stay readable"), "{text}");
+    }
+
+    /// At most [`MAX_LIGHTS_LISTED`] lights are listed per hit; the rest are counted and
+    /// still shade the colour.
+    #[test]
+    fn lights_past_the_cap_are_counted() {
+        let r = coincident_spheres(1, MAX_LIGHTS_LISTED + 36, 0);
+        let e = explain(&r, 2, 2, &ExplainOptions::default());
+        let s = e.tree.shading.as_ref().unwrap();
+        assert_eq!(s.lights.len(), MAX_LIGHTS_LISTED);
+        assert_eq!(s.lights_unlisted, 36);
+        assert_eq!(e.truncation.lights_unlisted, 36);
+        assert!(e.truncated);
+        assert!(to_text(&e).contains("… 36 more lights, not listed"));
+        let rendered = ColourKernel(&r).pixel(2, 2, &mut 0);
+        assert_eq!(e.colour.rgb8, rendered);
+    }
+
+    /// Nothing is left out of the lecture's example, and the answer says so.
+    #[test]
+    fn a_small_scene_is_not_truncated() {
+        let r = renderer("lecture.json");
+        let e = explain(&r, 2, 2, &ExplainOptions::default());
+        assert!(!e.truncated);
+        let t = &e.truncation;
+        assert_eq!(
+            (
+                t.tests_unlisted,
+                t.rays_not_broken_down,
+                t.budget_spent_at.as_ref()
+            ),
+            (0, 0, None)
+        );
+        assert!(t.bytes > 0 && t.bytes < MAX_ANSWER_BYTES);
+        assert_eq!(e.tree.tests_unlisted, 0);
+        assert!(!to_text(&e).contains("Shortened"));
     }
 }

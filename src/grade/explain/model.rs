@@ -52,6 +52,10 @@ pub struct Explanation {
     pub tree: RayNode,
     /// The pixel's colour as rendered.
     pub colour: FinalColour,
+    /// Whether anything was left out of the tree (`truncation` says what and where).
+    pub truncated: bool,
+    /// The bounds the answer keeps, and what each left out.
+    pub truncation: Truncation,
     /// Remarks a reader needs (anti-aliasing, truncation).
     pub notes: Vec<String>,
 }
@@ -115,20 +119,22 @@ pub struct RayNode {
     pub ray: Ray4,
     /// Hits count for `λ` above this.
     pub lambda_min: f64,
-    /// Objects tested (by the chosen candidate rule) and the scene's total.
+    /// Objects tested by the chosen candidate rule, listed or not.
     pub tested: usize,
     /// Number of objects in the scene.
     pub objects: usize,
-    /// One entry per object tested, in scene order.
+    /// The tests listed, in scene order: at most `max_tests` and the chosen hit's.
     pub tests: Vec<ObjectTest>,
+    /// Objects tested but not listed (past `max_tests`, or the answer's size budget spent).
+    pub tests_unlisted: usize,
     /// The first hit, if any.
     pub hit: Option<HitInfo>,
     /// The shading of the hit (absent for a miss).
     pub shading: Option<Shading>,
     /// The linear colour this ray returns.
     pub colour: [f64; 3],
-    /// Set when the ray was not broken down (the explanation's ray budget was spent);
-    /// its colour is still the tracer's.
+    /// Set when the ray was not broken down (the explanation's ray budget or its size
+    /// budget was spent); its colour is still the tracer's.
     pub truncated: bool,
 }
 
@@ -149,7 +155,8 @@ pub struct ObjectTest {
     pub quadratics: Vec<Quadratic>,
     /// Planar faces tested (cube faces, caps, plane, disk).
     pub faces: Vec<FaceCheck>,
-    /// Triangle tests listed (at most `max_triangles` misses, every hit).
+    /// Triangle tests listed: at most `max_triangles` misses and `max_triangles` other
+    /// hits, and the hit that counts.
     pub triangles: Vec<TriangleCheck>,
     /// Triangle tests made but not listed.
     pub triangles_unlisted: usize,
@@ -265,8 +272,11 @@ pub struct Shading {
     pub offset: f64,
     /// `ambient ⊙ m.ambient`.
     pub ambient: [f64; 3],
-    /// One entry per light.
+    /// One entry per light, in scene order: at most
+    /// [`MAX_LIGHTS_LISTED`](super::MAX_LIGHTS_LISTED), while the size budget lasts.
     pub lights: Vec<LightInfo>,
+    /// Lights not listed; they are shaded all the same, and their terms are in `colour`.
+    pub lights_unlisted: usize,
     /// The reflection, when the material has `mirror` and the depth allows it.
     pub reflection: Option<Box<Secondary>>,
     /// The refraction, when the material has `transmission` and the depth allows it.
@@ -389,4 +399,42 @@ pub struct Sample {
     pub image_point: [f64; 2],
     /// Its linear colour.
     pub linear: [f64; 3],
+}
+
+/// The bounds an explanation keeps, whatever the scene and options, and what each left
+/// out.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Truncation {
+    /// Most rays broken down.
+    pub max_rays: usize,
+    /// Most object tests listed per ray (the chosen hit's is listed besides).
+    pub max_tests: usize,
+    /// Most triangle misses, and other hits, listed per mesh and ray.
+    pub max_triangles: usize,
+    /// Most lights listed per hit.
+    pub max_lights: usize,
+    /// The size budget of the tree: bytes of the JSON answer
+    /// ([`MAX_ANSWER_BYTES`](super::MAX_ANSWER_BYTES)).
+    pub max_bytes: usize,
+    /// Bytes of it spent (about: each ray's own fields are estimated).
+    pub bytes: usize,
+    /// Rays in the tree that are not broken down (`truncated`).
+    pub rays_not_broken_down: usize,
+    /// Object tests left out, over all rays.
+    pub tests_unlisted: usize,
+    /// Triangle tests left out, over all object tests.
+    pub triangles_unlisted: usize,
+    /// Lights left out, over all hits.
+    pub lights_unlisted: usize,
+    /// Where the size budget ran out, if it did.
+    pub budget_spent_at: Option<SpentAt>,
+}
+
+/// The ray at which the size budget ran out: every ray traced after it is not broken down.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SpentAt {
+    /// Its number, as the text numbers rays: from 1, in the order they are traced.
+    pub ray: usize,
+    /// Its JSON pointer in the answer, e.g. `/tree/shading/reflection/ray`.
+    pub pointer: String,
 }

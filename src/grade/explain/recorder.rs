@@ -4,15 +4,15 @@
 //! needs beyond the colour: every candidate object's test, and the state of shadow rays
 //! the tracer had no need to cast.
 
-use std::cell::Cell;
+use std::cell::{Cell, RefCell};
 
 use glam::DVec3;
 
 use super::model::{
     Blocker, FaceCheck, HitInfo, LightInfo, ObjectTest, Quadratic, RayNode, Role, Root, Secondary,
-    Shading, TriangleCheck, point4, vector4,
+    Shading, SpentAt, TriangleCheck, point4, vector4,
 };
-use super::{Candidates, ExplainOptions};
+use super::{Candidates, ExplainOptions, MAX_ANSWER_BYTES, MAX_LIGHTS_LISTED};
 use crate::geometry::hit::{FaceTest, Probe, QuadraticTest, TriangleTest};
 use crate::geometry::{Hit, Ray, Shape, Surface, World};
 use crate::render::Renderer;
@@ -21,13 +21,36 @@ use crate::render::shade::{
 };
 use crate::scene::{Light, Material};
 
-/// Records what a shape test reports.
+/// Records what a shape test reports. Triangle tests are kept only up to `cap` misses
+/// and `cap` hits (a mesh of a million coincident triangles reports a million hits), plus
+/// the best hit past the cap, which may be the one that counts.
 #[derive(Default)]
 struct TestRecorder {
     object_ray: Option<Ray>,
     quadratics: Vec<QuadraticTest>,
     faces: Vec<FaceTest>,
     triangles: Vec<TriangleTest>,
+    cap: usize,
+    misses_kept: usize,
+    hits_kept: usize,
+    unlisted: usize,
+    best_unlisted: Option<TriangleTest>,
+}
+
+impl TestRecorder {
+    fn new(cap: usize) -> Self {
+        TestRecorder {
+            cap,
+            ..Default::default()
+        }
+    }
+
+    /// The mesh's rule for its hit: the smallest `λ`, a tie to the triangle listed first.
+    fn better(t: &TriangleTest, than: &TriangleTest) -> bool {
+        let key = |t: &TriangleTest| (t.uvt.map_or(f64::INFINITY, |[_, _, l]| l), t.triangle);
+        let (a, b) = (key(t), key(than));
+        a.0 < b.0 || (a.0 == b.0 && a.1 < b.1)
+    }
 }
 
 impl Probe for TestRecorder {
@@ -41,7 +64,25 @@ impl Probe for TestRecorder {
         self.faces.push(*f);
     }
     fn triangle(&mut self, t: &TriangleTest) {
-        self.triangles.push(*t);
+        let kept = if t.hit {
+            &mut self.hits_kept
+        } else {
+            &mut self.misses_kept
+        };
+        if *kept < self.cap {
+            *kept += 1;
+            self.triangles.push(*t);
+            return;
+        }
+        self.unlisted += 1;
+        if t.hit
+            && self
+                .best_unlisted
+                .as_ref()
+                .is_none_or(|b| Self::better(t, b))
+        {
+            self.best_unlisted = Some(*t);
+        }
     }
     fn active(&self) -> bool {
         true
@@ -53,14 +94,32 @@ pub fn part_label(shape: &Shape, part: u32) -> String {
     shape.part_label(part).into_owned()
 }
 
-/// What every ray of one explanation shares: the scene, the options, and the budget of
-/// rays still to break down.
+/// What every ray of one explanation shares: the scene, the options, the budgets of rays
+/// still to break down and of answer bytes still to write, and what was left out.
 pub(super) struct Explainer<'a> {
     r: &'a Renderer,
     opts: &'a ExplainOptions,
     mode: Candidates,
     rays_left: Cell<usize>,
     truncated: Cell<bool>,
+    bytes_left: Cell<usize>,
+    /// Rays numbered as the text numbers them: from 1, in the order they are traced.
+    rays_numbered: Cell<usize>,
+    spent_at: RefCell<Option<SpentAt>>,
+    rays_not_broken_down: Cell<usize>,
+    tests_unlisted: Cell<usize>,
+    triangles_unlisted: Cell<usize>,
+    lights_unlisted: Cell<usize>,
+}
+
+/// What an explanation left out, as [`Explainer::left_out`] reports it.
+pub(super) struct LeftOut {
+    pub(super) bytes: usize,
+    pub(super) spent_at: Option<SpentAt>,
+    pub(super) rays_not_broken_down: usize,
+    pub(super) tests_unlisted: usize,
+    pub(super) triangles_unlisted: usize,
+    pub(super) lights_unlisted: usize,
 }
 
 impl<'a> Explainer<'a> {
@@ -73,31 +132,97 @@ impl<'a> Explainer<'a> {
             mode,
             rays_left: Cell::new(opts.max_rays.max(1)),
             truncated: Cell::new(false),
+            bytes_left: Cell::new(MAX_ANSWER_BYTES),
+            rays_numbered: Cell::new(0),
+            spent_at: RefCell::new(None),
+            rays_not_broken_down: Cell::new(0),
+            tests_unlisted: Cell::new(0),
+            triangles_unlisted: Cell::new(0),
+            lights_unlisted: Cell::new(0),
         }
     }
 
-    /// Whether some ray was left unexplained because the budget was spent.
+    /// Whether some ray was left unexplained because the ray budget was spent.
     pub(super) fn truncated(&self) -> bool {
         self.truncated.get()
     }
 
-    /// The tests of every candidate object, each searched over `(t_min, ∞)` on its own.
-    fn object_tests(&self, ray: &Ray, t_min: f64, chosen: Option<u32>) -> Vec<ObjectTest> {
+    /// What was left out, once the tracer is done.
+    pub(super) fn left_out(&self) -> LeftOut {
+        LeftOut {
+            bytes: MAX_ANSWER_BYTES - self.bytes_left.get(),
+            spent_at: self.spent_at.borrow().clone(),
+            rays_not_broken_down: self.rays_not_broken_down.get(),
+            tests_unlisted: self.tests_unlisted.get(),
+            triangles_unlisted: self.triangles_unlisted.get(),
+            lights_unlisted: self.lights_unlisted.get(),
+        }
+    }
+
+    /// Whether the size budget is spent: nothing more is written but what keeps the tree
+    /// whole (a ray's place and colour, its chosen hit).
+    fn spent(&self) -> bool {
+        self.bytes_left.get() == 0
+    }
+
+    /// Charges `n` bytes to the budget; the first charge it cannot pay in full marks where
+    /// the budget ran out.
+    fn spend(&self, n: usize, at: &Place) {
+        let left = self.bytes_left.get();
+        self.bytes_left.set(left.saturating_sub(n));
+        if n >= left && left > 0 {
+            *self.spent_at.borrow_mut() = Some(SpentAt {
+                ray: at.number,
+                pointer: at.pointer.clone(),
+            });
+        }
+    }
+
+    fn count(cell: &Cell<usize>, n: usize) {
+        cell.set(cell.get().saturating_add(n));
+    }
+
+    /// The tests of the candidate objects, each searched over `(t_min, ∞)` on its own:
+    /// at most `max_tests` of them and the chosen one, while the budget lasts. Returns
+    /// them with the number of candidates (listed or not).
+    fn object_tests(
+        &self,
+        ray: &Ray,
+        t_min: f64,
+        chosen: Option<u32>,
+        at: &Place,
+    ) -> (Vec<ObjectTest>, usize) {
         let world: &World = &self.r.world;
-        let list: Vec<u32> = match self.mode {
-            Candidates::Bvh => world.candidates(ray, t_min, f64::INFINITY),
-            _ => (0..world.len() as u32).collect(),
+        let bvh;
+        let list: &mut dyn Iterator<Item = u32> = match self.mode {
+            Candidates::Bvh => {
+                bvh = world.candidates(ray, t_min, f64::INFINITY);
+                &mut bvh.iter().copied()
+            }
+            _ => &mut (0..world.len() as u32),
         };
-        list.into_iter()
-            .map(|i| self.object_test(i, ray, t_min, chosen == Some(i)))
-            .collect()
+        let mut all = 0;
+        let mut tests = Vec::new();
+        for i in list {
+            all += 1;
+            let is_chosen = chosen == Some(i);
+            if !is_chosen && (tests.len() >= self.opts.max_tests || self.spent()) {
+                continue;
+            }
+            let t = self.object_test(i, ray, t_min, is_chosen);
+            // Within the answer: tree, tests, the test; three more levels a depth.
+            self.spend(pretty_size(&t, 3 + 3 * at.depth), at);
+            tests.push(t);
+        }
+        Self::count(&self.tests_unlisted, all - tests.len());
+        (tests, all)
     }
 
     fn object_test(&self, i: u32, ray: &Ray, t_min: f64, chosen: bool) -> ObjectTest {
         let world = &self.r.world;
         let object = &self.r.scene.objects[i as usize];
         let shape = &object.shape;
-        let mut rec = TestRecorder::default();
+        let mut rec = TestRecorder::new(self.opts.max_triangles);
         let result = world.intersect_object(i, ray, t_min, f64::INFINITY, &mut rec);
         let object_ray = rec
             .object_ray
@@ -170,18 +295,17 @@ impl<'a> Explainer<'a> {
             })
             .collect();
 
-        let mut triangles = Vec::new();
-        let mut unlisted = 0;
-        let mut misses_listed = 0;
+        // The tests past the cap were not kept, but the one that counts always is.
+        if let (Some(b), Some((_, part))) = (rec.best_unlisted, result)
+            && b.triangle == part
+        {
+            rec.triangles.push(b);
+            rec.unlisted -= 1;
+        }
+        Self::count(&self.triangles_unlisted, rec.unlisted);
+        let mut triangles = Vec::with_capacity(rec.triangles.len());
         for t in &rec.triangles {
             let counts = t.hit && result.is_some_and(|(_, p)| p == t.triangle);
-            if !t.hit && misses_listed >= self.opts.max_triangles {
-                unlisted += 1;
-                continue;
-            }
-            if !t.hit {
-                misses_listed += 1;
-            }
             let why = match t.uvt {
                 None => "parallel to the triangle's plane",
                 Some(_) if counts => "the object's first hit",
@@ -210,7 +334,7 @@ impl<'a> Explainer<'a> {
             quadratics,
             faces,
             triangles,
-            triangles_unlisted: unlisted,
+            triangles_unlisted: rec.unlisted,
             linear_side: shape.linear_side() && rec.quadratics.is_empty(),
             lambda: result.map(|(t, _)| t),
             part: hit_part,
@@ -229,15 +353,57 @@ enum Detail {
     Ignored,
 }
 
+/// Where a ray sits in the answer: its number as the text gives it, and its JSON pointer.
+pub(super) struct Place {
+    number: usize,
+    depth: usize,
+    pointer: String,
+}
+
+/// Counts what is written to it: the size of a piece of the answer.
+#[derive(Default)]
+struct Measure {
+    bytes: usize,
+    lines: usize,
+}
+
+impl std::io::Write for Measure {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.bytes += b.len();
+        self.lines += b.iter().filter(|&&c| c == b'\n').count();
+        Ok(b.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+/// The bytes `v` takes in the pretty-printed answer, `level` objects deep (two spaces
+/// a level on each of its lines).
+fn pretty_size<T: serde::Serialize>(v: &T, level: usize) -> usize {
+    let mut m = Measure::default();
+    // Writing to a counter cannot fail, and these types always serialise.
+    let _ = serde_json::to_writer_pretty(&mut m, v);
+    m.bytes + (m.lines + 1) * 2 * level
+}
+
+/// A ray's own fields (its ray, hit, material, terms), about 60 lines of the answer at
+/// `level`: charged when it begins, before they are known.
+fn node_size(level: usize) -> usize {
+    60 * (24 + 2 * level)
+}
+
 /// Records one ray of the tree (and, through the recorders it hands out for its
 /// secondary rays, the tree below it).
 pub(super) struct Recorder<'e> {
     ex: &'e Explainer<'e>,
     role: Role,
     detail: Detail,
+    place: Place,
     ray: Ray,
     depth: u32,
     t_min: f64,
+    tested: usize,
     tests: Vec<ObjectTest>,
     hit: Option<HitInfo>,
     shading: Option<Shading>,
@@ -246,18 +412,25 @@ pub(super) struct Recorder<'e> {
 impl<'e> Recorder<'e> {
     /// The recorder of the pixel's primary ray.
     pub(super) fn primary(ex: &'e Explainer<'e>) -> Self {
-        Recorder::with_role(ex, Role::Primary, Detail::Full)
+        Recorder::with_role(ex, Role::Primary, Detail::Full, "/tree".to_owned())
     }
 
-    fn with_role(ex: &'e Explainer<'e>, role: Role, detail: Detail) -> Self {
+    fn with_role(ex: &'e Explainer<'e>, role: Role, detail: Detail, pointer: String) -> Self {
         Recorder {
             ex,
             role,
             detail,
+            // Numbered when the tracer begins the ray.
+            place: Place {
+                number: 0,
+                depth: 0,
+                pointer,
+            },
             // Set when the tracer begins the ray, before anything else is recorded.
             ray: Ray::new(DVec3::ZERO, DVec3::ZERO),
             depth: 0,
             t_min: 0.0,
+            tested: 0,
             tests: Vec::new(),
             hit: None,
             shading: None,
@@ -271,8 +444,9 @@ impl<'e> Recorder<'e> {
             depth: self.depth,
             ray: (&self.ray).into(),
             lambda_min: self.t_min,
-            tested: self.tests.len(),
+            tested: self.tested,
             objects: self.ex.r.world.len(),
+            tests_unlisted: self.tested - self.tests.len(),
             tests: self.tests,
             hit: self.hit,
             shading: self.shading,
@@ -291,22 +465,33 @@ impl ShadingProbe for Recorder<'_> {
         self.ray = *ray;
         self.depth = depth;
         self.t_min = t_min;
-        if self.detail == Detail::Full {
-            let left = self.ex.rays_left.get();
-            if left == 0 {
-                self.detail = Detail::Truncated;
-                self.ex.truncated.set(true);
-            } else {
-                self.ex.rays_left.set(left - 1);
-            }
+        if self.detail == Detail::Ignored {
+            return;
         }
+        self.place.depth = depth as usize;
+        let ex = self.ex;
+        ex.rays_numbered.set(ex.rays_numbered.get() + 1);
+        self.place.number = ex.rays_numbered.get();
+        let left = ex.rays_left.get();
+        if left == 0 {
+            self.detail = Detail::Truncated;
+            ex.truncated.set(true);
+        } else if ex.spent() {
+            self.detail = Detail::Truncated;
+        } else {
+            ex.rays_left.set(left - 1);
+        }
+        if self.detail == Detail::Truncated {
+            Explainer::count(&ex.rays_not_broken_down, 1);
+        }
+        ex.spend(node_size(2 + 3 * self.place.depth), &self.place);
     }
 
     fn closest(&mut self, hit: Option<&Hit>) {
         if self.full() {
-            self.tests = self
-                .ex
-                .object_tests(&self.ray, self.t_min, hit.map(|h| h.object));
+            (self.tests, self.tested) =
+                self.ex
+                    .object_tests(&self.ray, self.t_min, hit.map(|h| h.object), &self.place);
         }
     }
 
@@ -335,7 +520,8 @@ impl ShadingProbe for Recorder<'_> {
             v: (-self.ray.dir.normalize()).to_array(),
             offset: surface_offset(s.point),
             ambient: ambient.to_array(),
-            lights: Vec::with_capacity(scene.lights.len()),
+            lights: Vec::with_capacity(scene.lights.len().min(MAX_LIGHTS_LISTED)),
+            lights_unlisted: 0,
             reflection: None,
             refraction: None,
             no_secondary: None,
@@ -349,6 +535,11 @@ impl ShadingProbe for Recorder<'_> {
         let Some(shading) = &mut self.shading else {
             return;
         };
+        if shading.lights.len() >= MAX_LIGHTS_LISTED || self.ex.spent() {
+            shading.lights_unlisted += 1;
+            Explainer::count(&self.ex.lights_unlisted, 1);
+            return;
+        }
         let scene = &self.ex.r.scene;
         let world = &self.ex.r.world;
         // The tracer skips the shadow ray of a light that adds nothing; the reader is
@@ -375,7 +566,7 @@ impl ShadingProbe for Recorder<'_> {
             Light::Directional { colour, .. } => ("directional", colour),
             Light::Spot { colour, .. } => ("spot", colour),
         };
-        shading.lights.push(LightInfo {
+        let info = LightInfo {
             light: index,
             kind,
             colour: colour.to_array(),
@@ -390,7 +581,11 @@ impl ShadingProbe for Recorder<'_> {
             r_dot_v: t.r_dot_v,
             diffuse: t.diffuse.to_array(),
             specular: t.specular.to_array(),
-        });
+        };
+        // Within the answer: tree, shading, lights, the light; three more levels a depth.
+        self.ex
+            .spend(pretty_size(&info, 4 + 3 * self.place.depth), &self.place);
+        shading.lights.push(info);
     }
 
     fn no_secondary(&mut self, why: NoSecondary) {
@@ -415,12 +610,15 @@ impl ShadingProbe for Recorder<'_> {
             Branch::Refraction if bounce.total_internal_reflection => Role::TotalInternalReflection,
             Branch::Refraction => Role::Refracted,
         };
-        let detail = if self.full() {
-            Detail::Full
-        } else {
-            Detail::Ignored
+        if !self.full() {
+            return Recorder::with_role(self.ex, role, Detail::Ignored, String::new());
+        }
+        let field = match branch {
+            Branch::Reflection => "reflection",
+            Branch::Refraction => "refraction",
         };
-        Recorder::with_role(self.ex, role, detail)
+        let pointer = format!("{}/shading/{field}/ray", self.place.pointer);
+        Recorder::with_role(self.ex, role, Detail::Full, pointer)
     }
 
     fn secondary_done(
@@ -533,5 +731,41 @@ mod tests {
         assert_eq!(bits(refracted.colour), bits(whole.colour));
         assert_eq!(refracted.ray, whole.ray);
         assert_eq!(refracted.role, whole.role);
+    }
+
+    /// A mesh of a thousand coincident triangles reports a thousand hits: at most
+    /// `max_triangles` misses and as many other hits are listed, and the one that counts.
+    #[test]
+    fn coincident_triangles_are_listed_up_to_the_cap() {
+        let k = 1000;
+        let scene = serde_json::json!({
+            "version": 1,
+            "image": {"width": 5, "height": 5},
+            "camera": {"focal_length": 1},
+            "objects": [{
+                "shape": "mesh",
+                "positions": [[-1, -1, 3], [1, -1, 3], [0, 1, 3]],
+                "indices": vec![[0, 1, 2]; k]
+            }],
+            "lights": [{"type": "point", "position": [0, -4, 0], "colour": [1, 1, 1]}]
+        });
+        let bytes = serde_json::to_vec(&scene).unwrap();
+        let r = Renderer::new(std::sync::Arc::new(
+            crate::scene::parse(&bytes, &crate::scene::Limits::NONE).unwrap(),
+        ));
+        let opts = ExplainOptions::default();
+        let e = explain(&r, 2, 2, &opts);
+        let t = &e.tree.tests[0];
+        let part = e.tree.hit.as_ref().unwrap().part.clone();
+        assert!(t.triangles.len() <= 2 * opts.max_triangles + 1);
+        assert_eq!(t.triangles.len() + t.triangles_unlisted, k);
+        let counting: Vec<_> = t.triangles.iter().filter(|c| c.counts).collect();
+        assert_eq!(counting.len(), 1);
+        assert_eq!(
+            part_label(&r.scene.objects[0].shape, counting[0].triangle),
+            part
+        );
+        assert_eq!(e.truncation.triangles_unlisted, t.triangles_unlisted);
+        assert!(e.truncated);
     }
 }

@@ -4,7 +4,7 @@
 
 use std::fmt::Write as _;
 
-use super::model::{Explanation, ObjectTest, Ray4, RayNode, Role};
+use super::model::{Explanation, ObjectTest, Ray4, RayNode, Role, Truncation};
 
 impl Role {
     /// How the text names a ray's role.
@@ -120,7 +120,7 @@ pub fn to_text(e: &Explanation) -> String {
         ));
         let _ = writeln!(o, "  world space:  p(λ) = {}", ray_text(&p.world));
     }
-    node_text(&mut o, &e.tree, "", "Ray 1", &mut 1);
+    node_text(&mut o, &e.tree, "", &mut 1, &e.truncation);
 
     let c = &e.colour;
     let _ = writeln!(o, "\nFinal colour");
@@ -147,6 +147,25 @@ pub fn to_text(e: &Explanation) -> String {
         "  8-bit:        round(255 · clamp(c, 0, 1)) = [{}, {}, {}]  {}",
         c.rgb8[0], c.rgb8[1], c.rgb8[2], c.hex
     );
+    if e.truncated {
+        let t = &e.truncation;
+        let _ = writeln!(
+            o,
+            "\nShortened to stay readable: {} rays not broken down; {} object tests, {} \
+             triangle tests and {} lights not listed{}",
+            t.rays_not_broken_down,
+            t.tests_unlisted,
+            t.triangles_unlisted,
+            t.lights_unlisted,
+            match &t.budget_spent_at {
+                Some(a) => format!(
+                    "; the size budget of {} bytes ran out at Ray {}",
+                    t.max_bytes, a.ray
+                ),
+                None => String::new(),
+            }
+        );
+    }
     if !e.notes.is_empty() {
         let _ = writeln!(o, "\nNotes");
         for n in &e.notes {
@@ -156,18 +175,30 @@ pub fn to_text(e: &Explanation) -> String {
     o
 }
 
-fn node_text(o: &mut String, n: &RayNode, ind: &str, title: &str, counter: &mut usize) {
+/// Writes ray number `*counter` and, numbering on, the rays below it.
+fn node_text(o: &mut String, n: &RayNode, ind: &str, counter: &mut usize, cut: &Truncation) {
+    let number = *counter;
     let _ = writeln!(
         o,
-        "\n{ind}{title}: {} ray, depth {}: p(λ) = {}",
+        "\n{ind}Ray {number}: {} ray, depth {}: p(λ) = {}",
         n.role.label(),
         n.depth,
         ray_text(&n.ray)
     );
+    // The size budget, once spent, cuts every ray traced after the one it ran out at.
+    let budget_spent = cut.budget_spent_at.as_ref().is_some_and(|a| number > a.ray);
     if n.truncated {
+        let why = if budget_spent {
+            format!(
+                "the answer's size budget of {} bytes is spent",
+                cut.max_bytes
+            )
+        } else {
+            "the ray budget is spent".to_owned()
+        };
         let _ = writeln!(
             o,
-            "{ind}  (not broken down: the ray budget is spent) colour {}",
+            "{ind}  (not broken down: {why}) colour {}",
             vec_text(&n.colour)
         );
         return;
@@ -181,6 +212,21 @@ fn node_text(o: &mut String, n: &RayNode, ind: &str, title: &str, counter: &mut 
     );
     for t in &n.tests {
         object_text(o, t, &format!("{ind}  "));
+    }
+    if n.tests_unlisted > 0 {
+        let why = if n.tests.len() >= cut.max_tests {
+            format!("at most {} are listed per ray", cut.max_tests)
+        } else {
+            format!(
+                "the answer's size budget of {} bytes ran out",
+                cut.max_bytes
+            )
+        };
+        let _ = writeln!(
+            o,
+            "{ind}  … {} more objects tested, not listed: {why}",
+            n.tests_unlisted
+        );
     }
     let Some(h) = &n.hit else {
         let _ = writeln!(o, "{ind}  No hit: the background {}", vec_text(&n.colour));
@@ -277,6 +323,13 @@ fn node_text(o: &mut String, n: &RayNode, ind: &str, title: &str, counter: &mut 
             );
         }
     }
+    if s.lights_unlisted > 0 {
+        let _ = writeln!(
+            o,
+            "{ind}    … {} more lights, not listed (their terms are in the colour all the same)",
+            s.lights_unlisted
+        );
+    }
     if let Some(why) = &s.no_secondary {
         let _ = writeln!(o, "{ind}    no reflected or refracted ray: {why}");
     }
@@ -284,8 +337,7 @@ fn node_text(o: &mut String, n: &RayNode, ind: &str, title: &str, counter: &mut 
     for (label, sec) in [("mirror", &s.reflection), ("transmission", &s.refraction)] {
         if let Some(sec) = sec {
             *counter += 1;
-            let title = format!("Ray {counter}");
-            node_text(o, &sec.ray, &child_ind, &title, counter);
+            node_text(o, &sec.ray, &child_ind, counter, cut);
             let _ = writeln!(
                 o,
                 "{child_ind}  contribution: {label} {} ⊙ {} = {}",
