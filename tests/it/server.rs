@@ -360,6 +360,12 @@ async fn health_readiness_and_metrics() {
         .bytes()
         .await
         .unwrap();
+    // The last byte can reach the client before the render has recorded its duration
+    // and freed its slot (in that order): wait for the slot.
+    app.wait_for_metric("raytile_renders_in_flight", Duration::from_secs(10), |v| {
+        v == 0.0
+    })
+    .await;
     let res = app.get("/metrics").await;
     assert!(header(&res, "content-type").starts_with("text/plain; version=0.0.4"));
     let text = res.text().await.unwrap();
