@@ -65,6 +65,11 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYTILE_MAX_TRIANGLES", default_value_t = Limits::default().max_triangles)]
     pub max_triangles: u64,
 
+    /// Most rays a render may be estimated to trace (a pilot traces a sparse grid of its
+    /// pixels); past it, 422. A render that traces half as much again is stopped.
+    #[arg(long, env = "RAYTILE_MAX_RAYS", default_value_t = DEFAULT_MAX_RAYS, value_parser = clap::value_parser!(u64).range(1..))]
+    pub max_rays: u64,
+
     /// Largest request body in bytes; larger ones get 413.
     #[arg(long, env = "RAYTILE_MAX_BODY_BYTES", default_value_t = DEFAULT_MAX_BODY_BYTES)]
     pub max_body_bytes: usize,
@@ -133,6 +138,7 @@ impl Default for ServeArgs {
             max_depth: limits.max_depth,
             max_objects: limits.max_objects,
             max_triangles: limits.max_triangles,
+            max_rays: DEFAULT_MAX_RAYS,
             max_body_bytes: DEFAULT_MAX_BODY_BYTES,
             max_renders: None,
             queue: DEFAULT_QUEUE,
