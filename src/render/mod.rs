@@ -3,6 +3,7 @@
 //! what a pixel reports: a colour ([`ColourKernel`]) or its first hit ([`HitKernel`]).
 
 pub mod camera;
+pub mod cost;
 pub mod rect;
 pub mod shade;
 pub mod tiles;
@@ -11,9 +12,10 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
-use crate::geometry::{Surface, World, ray::PRIMARY_LAMBDA_MIN};
+use crate::geometry::{Ray, Surface, World, ray::PRIMARY_LAMBDA_MIN};
 use crate::scene::Scene;
 pub use camera::PrimaryRays;
+pub use cost::{CostError, Estimate, RayBudget, TooCostly, Work};
 pub use rect::{OutsideFrame, ParseRectError, Rect, region_in_frame};
 pub use shade::{RayCount, Shader, quantise};
 pub use tiles::{
@@ -63,12 +65,20 @@ impl Renderer {
         let mut sum = DVec3::ZERO;
         for j in 0..s {
             for i in 0..s {
-                let x = u as f64 + (i as f64 + 0.5) / sf;
-                let y = v as f64 + (j as f64 + 0.5) / sf;
-                sum += shader.trace(&self.camera.through(x, y), 0, PRIMARY_LAMBDA_MIN, rays);
+                sum += shader.trace(&self.sample_ray(u, v, i, j), 0, PRIMARY_LAMBDA_MIN, rays);
             }
         }
         sum / (sf * sf)
+    }
+
+    /// The primary ray of sample `(i, j)` of pixel `(u, v)`: the centre of cell `(i, j)`
+    /// of the pixel cut into `samples × samples` cells.
+    #[inline]
+    pub fn sample_ray(&self, u: u32, v: u32, i: u32, j: u32) -> Ray {
+        let sf = self.scene.samples as f64;
+        let x = u as f64 + (i as f64 + 0.5) / sf;
+        let y = v as f64 + (j as f64 + 0.5) / sf;
+        self.camera.through(x, y)
     }
 
     /// The first hit of pixel `(u, v)`'s centre ray.

@@ -12,6 +12,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use rayon::prelude::*;
 
 use super::Rect;
+use super::cost::RayBudget;
 
 /// Default tile edge in pixels.
 pub const DEFAULT_TILE_PX: u32 = 32;
@@ -57,9 +58,14 @@ pub enum Stopped {
     Sink(#[from] SinkClosed),
 }
 
-/// A flag that stops a render between tiles; cheap to clone and share.
+/// A flag that stops a render between tiles, and within a tile between rows; cheap to
+/// clone and share. It may carry a ray budget ([`Cancel::with_ray_limit`]): the tile loop
+/// charges it the rays it traces, and the flag goes up once they pass the limit.
 #[derive(Debug, Clone, Default)]
-pub struct Cancel(Arc<AtomicBool>);
+pub struct Cancel {
+    flag: Arc<AtomicBool>,
+    budget: Option<Arc<RayBudget>>,
+}
 
 impl Cancel {
     /// A fresh, uncancelled token.
@@ -67,14 +73,44 @@ impl Cancel {
         Self::default()
     }
 
-    /// Asks every holder to stop.
-    pub fn cancel(&self) {
-        self.0.store(true, Ordering::Relaxed);
+    /// A fresh token that also stops the render once it has traced more than `limit`
+    /// rays.
+    pub fn with_ray_limit(limit: u64) -> Self {
+        Cancel {
+            flag: Arc::default(),
+            budget: Some(Arc::new(RayBudget::new(limit))),
+        }
     }
 
-    /// Whether it was cancelled.
+    /// Asks every holder to stop.
+    pub fn cancel(&self) {
+        self.flag.store(true, Ordering::Relaxed);
+    }
+
+    /// Whether it was cancelled (also when its ray budget ran out).
     pub fn is_cancelled(&self) -> bool {
-        self.0.load(Ordering::Relaxed)
+        self.flag.load(Ordering::Relaxed)
+    }
+
+    /// Charges `rays` traced to the budget, if there is one, and cancels once it is
+    /// exceeded.
+    #[inline]
+    pub fn charge(&self, rays: u64) {
+        if let Some(b) = &self.budget
+            && b.charge(rays)
+        {
+            self.cancel();
+        }
+    }
+
+    /// Whether the ray budget ran out (which cancelled the render).
+    pub fn is_over_budget(&self) -> bool {
+        self.budget.as_ref().is_some_and(|b| b.is_exceeded())
+    }
+
+    /// The ray budget, if the token carries one.
+    pub fn budget(&self) -> Option<&RayBudget> {
+        self.budget.as_deref()
     }
 }
 
@@ -116,8 +152,15 @@ pub fn run<K: Kernel, S: TileSink<K::Pixel>>(
             let mut pixels = Vec::with_capacity(r.pixels() as usize);
             let mut n = 0u64;
             for v in r.y..r.y + r.height {
+                let before = n;
                 for u in r.x..r.x + r.width {
                     pixels.push(kernel.pixel(u, v, &mut n));
+                }
+                // Charged by the row, not the pixel: one atomic add per row costs nothing
+                // next to the row, and a costly render still stops within a row.
+                cancel.charge(n - before);
+                if cancel.is_cancelled() {
+                    return Err(Stopped::Cancelled);
                 }
             }
             rays.fetch_add(n, Ordering::Relaxed);

@@ -6,6 +6,13 @@
 //! and a load balancer can try another replica. Waiting ends when a slot frees (the
 //! semaphore is fair, so first come, first served), when the request's deadline passes
 //! (the caller's timeout, 504), or when the server starts draining (503).
+//!
+//! Holding a slot is not all: a render's cost is bounded too ([`CostLimit`]).
+//! Once admitted, on its trace thread, a pilot estimates the rays it would trace
+//! ([`crate::render::cost`]); past `--max-rays` the request is refused with 422 and the
+//! fields that drive the cost. A render that passes and then traces half as much again
+//! is stopped (its token carries the budget), so no scene holds the threads for its
+//! whole deadline.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -16,6 +23,10 @@ use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use super::error::ApiError;
 use super::metrics::Metrics;
 use super::shutdown::{Phase, Shutdown};
+use crate::config::ServeArgs;
+use crate::render::cost::{self, CostError, Work};
+use crate::render::{Cancel, Rect, Renderer};
+use crate::scene::{Problem, SceneError};
 
 /// The render slots and the queue in front of them.
 #[derive(Debug)]
@@ -111,6 +122,101 @@ impl Admission {
     pub fn is_saturated(&self) -> bool {
         self.permits.available_permits() == 0 && self.waiting() >= self.queue
     }
+}
+
+/// The cost policy: `--max-rays` and what follows from it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CostLimit {
+    /// The most rays a render may be estimated to trace.
+    pub max_rays: u64,
+    /// The request deadline, the answer when the estimate is cut short.
+    pub deadline: std::time::Duration,
+}
+
+impl CostLimit {
+    /// The server's policy.
+    pub fn new(config: &ServeArgs) -> CostLimit {
+        CostLimit {
+            max_rays: config.max_rays,
+            deadline: config.deadline(),
+        }
+    }
+
+    /// The cancel token of an admitted render: it also stops the render once it has
+    /// traced [`cost::overrun_limit`] rays.
+    pub fn token(&self) -> Cancel {
+        Cancel::with_ray_limit(cost::overrun_limit(self.max_rays))
+    }
+
+    /// Estimates the rays of rendering `region` of `r` as `work` (a pilot trace on the
+    /// calling thread, which must be a trace thread: it is CPU work), and refuses past
+    /// the limit: 422 with the fields that drive the cost, counted as rejected for
+    /// `over_budget`; the pointers start with `scene_at`, where the scene lies in the
+    /// body. When `cancel` goes up meanwhile (a deadline, the shutdown, a client that
+    /// left): 504, if anyone still listens.
+    pub fn check(
+        &self,
+        r: &Renderer,
+        region: Rect,
+        work: Work,
+        cancel: &Cancel,
+        metrics: &Metrics,
+        scene_at: &str,
+    ) -> Result<(), ApiError> {
+        let started = std::time::Instant::now();
+        match cost::check(r, region, work, self.max_rays, cancel) {
+            Ok(e) => {
+                tracing::debug!(
+                    estimate = e.rays,
+                    pilot_rays = e.pilot_rays,
+                    pilot_s = started.elapsed().as_secs_f64(),
+                    "cost estimated"
+                );
+                Ok(())
+            }
+            Err(CostError::TooCostly(t)) => {
+                tracing::info!(
+                    estimate = t.estimate.rays,
+                    complete = t.estimate.complete,
+                    limit = t.limit,
+                    pilot_s = started.elapsed().as_secs_f64(),
+                    "refused: {t}"
+                );
+                metrics.reject("over_budget");
+                Err(invalid(t.problems(&r.scene), scene_at))
+            }
+            Err(CostError::Cancelled) => Err(ApiError::DeadlineExceeded(self.deadline)),
+        }
+    }
+
+    /// The answer for work stopped by `cancel`'s ray budget, if that is what stopped
+    /// it: 422 as for a refusal, with what it traced as the estimate's lower bound.
+    pub fn overrun(
+        &self,
+        r: &Renderer,
+        work: Work,
+        cancel: &Cancel,
+        scene_at: &str,
+    ) -> Option<ApiError> {
+        let budget = cancel.budget().filter(|b| b.is_exceeded())?;
+        let t = cost::TooCostly {
+            estimate: cost::Estimate {
+                rays: budget.used(),
+                complete: false,
+                pilot_pixels: 0,
+                pilot_rays: 0,
+                branching: Vec::new(),
+            },
+            limit: budget.limit(),
+            work,
+        };
+        Some(invalid(t.problems(&r.scene), scene_at))
+    }
+}
+
+/// The 422 of a scene's `problems`, their pointers put under `scene_at`.
+fn invalid(problems: Vec<Problem>, scene_at: &str) -> ApiError {
+    ApiError::scene(SceneError::Invalid(problems), "the scene", scene_at)
 }
 
 #[cfg(test)]

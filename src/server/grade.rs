@@ -51,6 +51,7 @@ use serde::Deserialize;
 use serde_json::Value;
 
 use super::AppState;
+use super::admission::CostLimit;
 use super::error::ApiError;
 use super::extract::{
     RequestInfo, content_type, deadline_exceeded, is_json, media_essence, negotiate, once,
@@ -62,7 +63,7 @@ use crate::grade::{
     self, GradeError, GradeOptions, Hint, Submission, ToleranceOverrides, Tolerances,
 };
 use crate::json;
-use crate::render::Renderer;
+use crate::render::{Renderer, Work};
 use crate::scene::{self, Scene};
 
 /// The routes: `POST /v1/grade`.
@@ -343,6 +344,8 @@ struct Prepared {
     scene: Arc<Scene>,
     submission: Submission,
     tolerances: Tolerances,
+    /// Where the scene lies in the body, for the pointers of its problems.
+    scene_at: &'static str,
 }
 
 /// Parses the body in the order a client fixes things: the request's structure and the
@@ -382,18 +385,18 @@ fn prepare(
     tolerances
         .check()
         .map_err(|e| ApiError::BadRequest(e.to_string()))?;
-    let (scene, submission, hint) = match sent {
+    let (scene, submission, hint, scene_at) = match sent {
         Sent::Form(scene, submission, hint) => {
             let scene = scene::parse(&scene, limits)
                 .map_err(|e| ApiError::scene(e, "the `scene` part", ""))?;
-            (scene, submission, hint)
+            (scene, submission, hint, "")
         }
         Sent::Json(scene, submission) => {
             let scene = scene::parse_value(scene, limits)
                 .map_err(|e| ApiError::scene(e, "the `scene` part", "/scene"))?;
             let (submission, hint) =
                 submission_member(submission).map_err(ApiError::InvalidSubmission)?;
-            (scene, Bytes::from(submission), hint)
+            (scene, Bytes::from(submission), hint, "/scene")
         }
     };
     let hint = query.format.unwrap_or(hint);
@@ -403,6 +406,7 @@ fn prepare(
         scene: Arc::new(scene),
         submission,
         tolerances,
+        scene_at,
     })
 }
 
@@ -511,19 +515,28 @@ async fn grade(
     };
     let max_score = query.max_score.unwrap_or(1.0);
     let deadline_len = app.config.deadline();
+    let (cost, metrics) = (CostLimit::new(&app.config), app.metrics.clone());
     let (bytes, pass) = job::run(&app, &info, "grade", move |cancel| {
         let Prepared {
             scene,
             submission,
             tolerances,
+            scene_at,
         } = prepared;
         let r = Renderer::new(scene);
+        let work = match submission {
+            Submission::Image(_) => Work::Colour,
+            Submission::Hits(_) => Work::Hits,
+        };
+        cost.check(&r, r.frame(), work, cancel, &metrics, scene_at)?;
         let opts = GradeOptions {
             cancel: cancel.clone(),
             ..opts
         };
-        let report = grade::grade(&r, submission, &tolerances, &opts)
-            .map_err(|e| ApiError::grading(e, deadline_len))?;
+        let report = grade::grade(&r, submission, &tolerances, &opts).map_err(|e| {
+            cost.overrun(&r, work, cancel, scene_at)
+                .unwrap_or_else(|| ApiError::grading(e, deadline_len))
+        })?;
         let bytes = write_report(&report, answer, max_score).map_err(write_failed)?;
         Ok::<_, ApiError>((bytes, report.pass))
     })

@@ -9,6 +9,10 @@
 //! [`Cancel`] flag, which stops a reference render between tiles; work that cannot stop
 //! (explaining one pixel) finishes on its own and is thrown away, still holding its slot
 //! so that admission counts what really runs.
+//!
+//! The flag also carries the ray budget of [`CostLimit::token`]: work that renders (the
+//! reference of a grade) is checked first with [`CostLimit::check`], and stopped once
+//! it traces half as much again as `--max-rays` (outcome `over_budget`).
 
 use std::panic::AssertUnwindSafe;
 use std::time::Instant;
@@ -16,6 +20,7 @@ use std::time::Instant;
 use tokio::sync::oneshot;
 
 use super::AppState;
+use super::admission::CostLimit;
 use super::error::ApiError;
 use super::extract::{RequestInfo, deadline_exceeded};
 use super::shutdown::Phase;
@@ -34,8 +39,8 @@ impl Drop for CancelOnDrop {
 /// Runs `work` on the rayon pool once a render slot is free, and returns what it
 /// returns. `label` names it in `raytile_render_duration_seconds{output}`.
 ///
-/// The work gets the cancel flag that the deadline, the shutdown and a departed client
-/// raise. A panic in it is caught and answered as 500 (a fault of ours).
+/// The work gets the cancel flag that the deadline, the shutdown, a departed client and
+/// the ray budget raise. A panic in it is caught and answered as 500 (a fault of ours).
 pub async fn run<T, F>(
     app: &AppState,
     info: &RequestInfo,
@@ -50,7 +55,7 @@ where
     let slot = tokio::time::timeout_at(deadline, app.admission.admit(&app.shutdown))
         .await
         .map_err(|_| deadline_exceeded(app))??;
-    let cancel = Cancel::new();
+    let cancel = CostLimit::new(&app.config).token();
     let _stop_when_gone = CancelOnDrop(cancel.clone());
     let (tx, rx) = oneshot::channel();
     let job_cancel = cancel.clone();
@@ -62,6 +67,7 @@ where
         let result = std::panic::catch_unwind(AssertUnwindSafe(|| work(&job_cancel)));
         let outcome = match &result {
             Err(_) => "failed",
+            Ok(_) if job_cancel.is_over_budget() => "over_budget",
             Ok(_) if job_cancel.is_cancelled() => "cancelled",
             Ok(_) => "complete",
         };

@@ -6,12 +6,12 @@
 //! | metric | type | labels |
 //! | --- | --- | --- |
 //! | `raytile_http_requests_total` | counter | `route`, `method`, `status` |
-//! | `raytile_render_duration_seconds` | histogram | `output` (png, json, ndjson, npy, csv; trace, grade), `outcome` (complete, cancelled, failed) |
+//! | `raytile_render_duration_seconds` | histogram | `output` (png, json, ndjson, npy, csv; trace, grade), `outcome` (complete, cancelled, over_budget, failed) |
 //! | `raytile_rays_traced_total` | counter | |
 //! | `raytile_tiles_traced_total` | counter | |
 //! | `raytile_renders_in_flight` | gauge | |
 //! | `raytile_queue_depth` | gauge | |
-//! | `raytile_rejected_requests_total` | counter | `reason` (saturated, shutting_down, deadline) |
+//! | `raytile_rejected_requests_total` | counter | `reason` (saturated, shutting_down, deadline, over_budget) |
 //! | `raytile_render_slots`, `raytile_queue_capacity` | gauge | |
 
 use axum::Router;
@@ -52,8 +52,9 @@ pub struct Metrics {
     pub rejected: IntCounterVec,
 }
 
-/// The `reason` labels of `raytile_rejected_requests_total`.
-pub const REJECT_REASONS: [&str; 3] = ["saturated", "shutting_down", "deadline"];
+/// The `reason` labels of `raytile_rejected_requests_total`; `over_budget` counts the
+/// 422s of renders whose estimated rays exceed `--max-rays`.
+pub const REJECT_REASONS: [&str; 4] = ["saturated", "shutting_down", "deadline", "over_budget"];
 
 /// Render durations from 10 ms to about 10 minutes.
 const DURATION_BUCKETS_SECONDS: [f64; 14] = [
@@ -88,7 +89,7 @@ impl Metrics {
         let rejected = IntCounterVec::new(
             Opts::new(
                 "raytile_rejected_requests_total",
-                "Requests refused by load shedding or the deadline, by reason.",
+                "Requests refused by load shedding, the deadline or the ray budget, by reason.",
             ),
             &["reason"],
         )?;

@@ -2,13 +2,17 @@
 //! both streamed while tiles finish, both with `?region=x,y,w,h`.
 //!
 //! The order is the point: every failure is decided before the first byte
-//! (extract and validate, negotiate, admit), because once the status line is out it
-//! cannot change. Then the job goes to the rayon pool with its render slot, and the
-//! handler returns at once with a body fed by [`super::stream`].
+//! (extract and validate, negotiate, admit, estimate the cost), because once the status
+//! line is out it cannot change. Then the job goes to the rayon pool with its render
+//! slot; there it builds the acceleration structure and runs the cost pilot
+//! ([`CostLimit::check`]), whose verdict the handler awaits: a scene past `--max-rays`
+//! is refused with 422, any other returns with a body fed by [`super::stream`].
 //!
-//! After the first byte, three things can cut the stream: the client leaving (the
+//! After the first byte, four things can cut the stream: the client leaving (the
 //! channel closes; tracing stops at the next tile), the deadline (a tokio timer cancels
-//! the render), and the end of the shutdown grace period. A cut stream ends with a body
+//! the render), the end of the shutdown grace period, and the render's ray budget (its
+//! cancel token goes up once it has traced half as much again as `--max-rays`; its
+//! outcome is `over_budget`). A cut stream ends with a body
 //! error, so hyper aborts the transfer and the client cannot mistake a partial image for
 //! a whole one.
 //!
@@ -32,7 +36,7 @@ use axum::routing::post;
 use tokio::sync::oneshot;
 
 use super::AppState;
-use super::admission::RenderSlot;
+use super::admission::{CostLimit, RenderSlot};
 use super::error::ApiError;
 use super::extract::{Accepted, Offers, RegionQuery, RequestInfo, SceneBody, deadline_exceeded};
 use super::metrics::Metrics;
@@ -42,7 +46,7 @@ use crate::format::{HitFormat, png};
 use crate::output::{HitSink, PngSink};
 use crate::render::{
     self, Cancel, ColourKernel, HitKernel, Rect, RenderStats, Renderer, SinkClosed, Stopped, Tile,
-    TileSink,
+    TileSink, Work,
 };
 use crate::scene::Scene;
 
@@ -100,6 +104,14 @@ impl Output {
         }
     }
 
+    /// What its pixels compute, which decides their cost.
+    fn work(self) -> Work {
+        match self {
+            Output::Png => Work::Colour,
+            Output::Hits(_) => Work::Hits,
+        }
+    }
+
     /// The `output` label of the duration histogram.
     fn label(self) -> &'static str {
         match self {
@@ -137,7 +149,11 @@ async fn hits(
     start(app, info, query, &headers, body, Output::Hits(format)).await
 }
 
-/// Checks the region, takes a render slot, and starts the streamed answer.
+/// Why a render was pulled when the server shuts down.
+const SHUTTING_DOWN: &str = "the server is shutting down";
+
+/// Checks the region, takes a render slot, checks the cost, and starts the streamed
+/// answer.
 async fn start(
     app: AppState,
     info: RequestInfo,
@@ -156,8 +172,10 @@ async fn start(
     let trailers = wants_trailers(headers);
 
     let (writer, stream_body) = stream::channel(app.config.stall());
-    let cut = Cut::new(writer.aborter());
+    let cost = CostLimit::new(&app.config);
+    let cut = Cut::new(writer.aborter(), cost.token());
     let done = spawn_watch(&app, cut.clone(), deadline);
+    let (verdict_tx, verdict) = oneshot::channel();
     let job = Job {
         app: app.clone(),
         scene: body.scene,
@@ -168,9 +186,22 @@ async fn start(
         trailers,
         slot,
         done,
+        cost,
+        verdict: verdict_tx,
         span: tracing::Span::current(),
     };
     app.pool.spawn(move || job.run());
+    // The watch cuts the pilot at the deadline and counts it; this timeout only makes
+    // sure the answer is not later than that.
+    match tokio::time::timeout_at(deadline.into(), verdict).await {
+        Err(_) => return Err(ApiError::DeadlineExceeded(app.config.deadline())),
+        Ok(Err(_)) => {
+            return Err(ApiError::Internal(
+                "the render ended before its cost was known".into(),
+            ));
+        }
+        Ok(Ok(verdict)) => verdict?,
+    }
 
     let mut res = Body::new(stream_body).into_response();
     let h = res.headers_mut();
@@ -230,9 +261,9 @@ struct Cut {
 }
 
 impl Cut {
-    fn new(aborter: Aborter) -> Cut {
+    fn new(aborter: Aborter, cancel: Cancel) -> Cut {
         Cut {
-            cancel: Cancel::new(),
+            cancel,
             aborter,
             why: Arc::new(std::sync::OnceLock::new()),
         }
@@ -257,7 +288,7 @@ fn spawn_watch(app: &AppState, cut: Cut, deadline: Instant) -> oneshot::Sender<(
                 metrics.reject("deadline");
                 cut.pull("the deadline passed");
             }
-            _ = shutdown.reached(Phase::Stopping) => cut.pull("the server is shutting down"),
+            _ = shutdown.reached(Phase::Stopping) => cut.pull(SHUTTING_DOWN),
             _ = done => {}
         }
     });
@@ -275,6 +306,9 @@ struct Job {
     trailers: bool,
     slot: RenderSlot,
     done: oneshot::Sender<()>,
+    cost: CostLimit,
+    /// Whether the render may start: the cost pilot's answer, sent before any tracing.
+    verdict: oneshot::Sender<Result<(), ApiError>>,
     span: tracing::Span,
 }
 
@@ -300,12 +334,56 @@ impl Job {
             trailers,
             slot,
             done,
+            cost,
+            verdict,
             span,
         } = self;
         let _enter = span.enter();
         let started = Instant::now();
+        let checked = std::panic::catch_unwind(AssertUnwindSafe(|| {
+            // The pilot needs the acceleration structure; the render reuses it.
+            let renderer = Renderer::new(scene);
+            let v = cost.check(
+                &renderer,
+                region,
+                output.work(),
+                &cut.cancel,
+                &app.metrics,
+                "",
+            );
+            (renderer, v)
+        }));
+        let renderer = match checked {
+            Ok((renderer, Ok(()))) => {
+                // The handler may be gone (the client left): then the body is closed
+                // too, and tracing stops at its first tile.
+                let _ = verdict.send(Ok(()));
+                renderer
+            }
+            Ok((_, Err(e))) => {
+                // Refused before tracing: free the slot first, so that it is free by
+                // the time the client reads the answer.
+                drop(slot);
+                drop(done);
+                let e = match cut.why.get() {
+                    Some(&SHUTTING_DOWN) => ApiError::ShuttingDown,
+                    _ => e,
+                };
+                let _ = verdict.send(Err(e));
+                return;
+            }
+            Err(_) => {
+                // The handler answers 500 when the verdict is dropped unsent.
+                tracing::error!("a render panicked before it started");
+                app.metrics
+                    .render_duration(output.label(), "failed")
+                    .observe(started.elapsed().as_secs_f64());
+                drop(slot);
+                return;
+            }
+        };
         let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
-            trace(&app, scene, region, output, &cut.cancel, &writer)
+            trace(&app, renderer, region, output, &cut.cancel, &writer)
         }));
         let elapsed = started.elapsed();
         let outcome = match result {
@@ -326,6 +404,8 @@ impl Job {
                     "the client went away"
                 } else if writer.has_stalled() {
                     "the client stopped reading"
+                } else if cut.cancel.is_over_budget() {
+                    OVER_BUDGET
                 } else if let Some(why) = cut.why.get() {
                     why
                 } else if matches!(e, Failure::Stopped(Stopped::Cancelled)) {
@@ -337,6 +417,11 @@ impl Job {
                     tracing::error!(error = %e, "render failed");
                     writer.fail(format!("the render failed: {e}"));
                     "failed"
+                } else if why == OVER_BUDGET {
+                    let limit = cut.cancel.budget().map_or(0, |b| b.limit());
+                    tracing::warn!(limit, "render stopped early: {why}");
+                    writer.fail(format!("{why} of {limit} rays"));
+                    "over_budget"
                 } else {
                     tracing::info!(reason = why, "render stopped early");
                     writer.fail(why);
@@ -358,6 +443,9 @@ impl Job {
     }
 }
 
+/// Why a render that traced past its ray budget was stopped.
+const OVER_BUDGET: &str = "the render traced more rays than its budget";
+
 fn render_trailers(elapsed: Duration, stats: RenderStats) -> HeaderMap {
     let mut t = HeaderMap::new();
     if let Ok(v) = HeaderValue::from_str(&format!("render;dur={:.3}", ms(elapsed))) {
@@ -370,7 +458,7 @@ fn render_trailers(elapsed: Duration, stats: RenderStats) -> HeaderMap {
 /// Builds the sink for `output`, sends its header at once, traces, and completes it.
 fn trace(
     app: &AppState,
-    scene: Arc<Scene>,
+    renderer: Renderer,
     region: Rect,
     output: Output,
     cancel: &Cancel,
@@ -379,17 +467,14 @@ fn trace(
     let tile = app.config.tile;
     match output {
         Output::Png => {
-            // The PNG header goes out before the acceleration structure is built.
             let png = PngSink::new(writer.clone(), region, tile)?;
             writer.send_pending()?;
-            let renderer = Renderer::new(scene);
             let sink = Observed::new(&png, writer, &app.metrics);
             let stats = render::run(&ColourKernel(&renderer), region, tile, cancel, &sink)?;
             png.finish()?;
             Ok(stats)
         }
         Output::Hits(format) => {
-            let renderer = Renderer::new(scene);
             let hits = HitSink::new(&renderer.scene, format, writer.clone(), region, tile)?;
             writer.send_pending()?;
             let sink = Observed::new(&hits, writer, &app.metrics);

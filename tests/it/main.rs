@@ -2,6 +2,7 @@
 //! - `support`: helpers (the built binary, scene files, temporary outputs);
 //! - `support_server`: a `TestApp` (the real router on a loopback port), scene makers;
 //! - `cli`: `raytile render | hits | validate` as a user runs them;
+//! - `cost`: the ray budget, its refusals and its cut renders;
 //! - `cluster`: two `raytile serve` processes behind nginx, and `render --servers`
 //!   finishing a frame while a replica dies (the nginx test is ignored unless asked for:
 //!   `bash .ci/test-all` installs nginx and runs it);
@@ -23,6 +24,7 @@ mod support_server;
 
 mod cli;
 mod cluster;
+mod cost;
 mod geometry;
 mod grade;
 mod imports;
