@@ -9,14 +9,9 @@ use std::net::SocketAddr;
 use std::time::Duration;
 
 use crate::render::DEFAULT_TILE_PX;
+pub use crate::render::cost::DEFAULT_MAX_RAYS;
 use crate::scene::Limits;
 
-/// The most rays a render may be estimated to trace: about two minutes of tracing for
-/// each of two renders sharing a 2-core replica (measured: 8 M rays/s for the whole
-/// replica on `scenes/showcase.json`), so even a render stopped only at half as much
-/// again ([`crate::render::cost::overrun_limit`]) ends well within the default deadline.
-/// The showcase at 2048² with 4 × 4 samples traces 345 M.
-pub const DEFAULT_MAX_RAYS: u64 = 500_000_000;
 /// Where the server listens unless told otherwise.
 pub const DEFAULT_ADDR: &str = "0.0.0.0:8080";
 /// The largest request body: 16 MiB (a scene with large inline meshes).
