@@ -33,8 +33,9 @@ pub mod png;
 pub use self::png::RgbImage;
 pub use hit::{Group, HitData, HitFormat, PixelHit, SubmittedHit};
 
-/// Why bytes could not be read as a format. [`crate::grade::GradeError`] carries each
-/// variant one to one (it adds what only grading can find wrong).
+/// Why bytes could not be read as a format. [`crate::grade::GradeError`] carries it as
+/// `Unreadable`, saying in its own words only what makes a submission the wrong thing
+/// (not a PNG, not the scene's size).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ReadError {
     /// A PNG was expected but the bytes are not one.
@@ -91,4 +92,21 @@ pub enum ReadError {
     /// A malformed `.npy` file.
     #[error("the NPY file is malformed: {0}")]
     Npy(String),
+}
+
+impl ReadError {
+    /// A stable, machine-readable name for the kind of problem (the `reason` member of
+    /// an invalid-submission problem document).
+    pub fn reason(&self) -> &'static str {
+        match self {
+            ReadError::NotPng => "not-png",
+            ReadError::CorruptPng(_) => "corrupt-png",
+            ReadError::SizeMismatch { .. } => "size-mismatch",
+            ReadError::Syntax { .. } => "syntax",
+            ReadError::WrongShape(_) => "wrong-shape",
+            ReadError::MissingField { .. } => "missing-field",
+            ReadError::BadValue { .. } => "bad-value",
+            ReadError::Npy(_) => "npy",
+        }
+    }
 }

@@ -31,7 +31,7 @@ use std::sync::Mutex;
 
 use serde::{Deserialize, Serialize};
 
-use crate::format::png;
+use crate::format::{ReadError, png};
 use crate::geometry::Surface;
 use crate::render::{
     Cancel, ColourKernel, DEFAULT_TILE_PX, HitKernel, Kernel, Rect, Renderer, SinkClosed, Stopped,
@@ -173,9 +173,6 @@ pub enum GradeError {
     /// A PNG was expected but the bytes are not one.
     #[error("the submission is not a PNG file (it does not start with the PNG signature)")]
     NotPng,
-    /// A PNG that cannot be decoded.
-    #[error("the PNG file is corrupt: {0}")]
-    CorruptPng(String),
     /// The image or hit data is not the scene's size.
     #[error(
         "the submission is {width} × {height} pixels but the scene renders {expected_width} × {expected_height}"
@@ -190,42 +187,10 @@ pub enum GradeError {
         /// The scene's height.
         expected_height: u32,
     },
-    /// JSON, NDJSON or CSV that does not parse (or has the wrong types).
-    #[error("the hit data is not valid {format}: {message} (line {line}, column {column})")]
-    Syntax {
-        /// `"JSON"`, `"NDJSON"` or `"CSV"`.
-        format: &'static str,
-        /// 1-based line.
-        line: usize,
-        /// 1-based column (0 when unknown).
-        column: usize,
-        /// What is wrong.
-        message: String,
-    },
-    /// Hit data whose layout is not an `(h, w)` grid of hit records.
-    #[error("the hit data has the wrong shape: {0}")]
-    WrongShape(String),
-    /// A required column or field is absent.
-    #[error("the hit data has no {what} `{field}` (needed: {needed})")]
-    MissingField {
-        /// `"CSV column"` or `"NPY field"`.
-        what: &'static str,
-        /// The missing name.
-        field: String,
-        /// What the format needs.
-        needed: &'static str,
-    },
-    /// A value that is not what its field needs.
-    #[error("{at}: {message}")]
-    BadValue {
-        /// Where: a JSON path, a CSV line and column.
-        at: String,
-        /// What is wrong.
-        message: String,
-    },
-    /// A malformed `.npy` file.
-    #[error("the NPY file is malformed: {0}")]
-    Npy(String),
+    /// Bytes the format's reader refused (corrupt PNG, bad JSON, NDJSON, NPY or CSV,
+    /// missing fields, values of the wrong kind), as the reader says it.
+    #[error(transparent)]
+    Unreadable(ReadError),
     /// A pixel outside the frame.
     #[error("pixel ({u}, {v}) lies outside the {width} × {height} image")]
     OutsideImage {
@@ -360,7 +325,9 @@ impl submission::HitData {
                 let (u, v) = match (p.u, p.v) {
                     (Some(u), Some(v)) => (u, v),
                     _ if rect.width == 0 => {
-                        return Err(GradeError::WrongShape("a group has width 0".into()));
+                        return Err(GradeError::Unreadable(ReadError::WrongShape(
+                            "a group has width 0".into(),
+                        )));
                     }
                     _ => (
                         rect.x.saturating_add(k as u32 % rect.width),

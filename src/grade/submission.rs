@@ -153,10 +153,11 @@ fn detect(bytes: &[u8]) -> Result<Hint, GradeError> {
 }
 
 impl From<ReadError> for GradeError {
+    /// A reader's error, in the grader's words where a submission is at fault for being
+    /// the wrong thing (not a PNG, not the scene's size); the reader's own otherwise.
     fn from(e: ReadError) -> GradeError {
         match e {
             ReadError::NotPng => GradeError::NotPng,
-            ReadError::CorruptPng(m) => GradeError::CorruptPng(m),
             ReadError::SizeMismatch {
                 width,
                 height,
@@ -168,29 +169,7 @@ impl From<ReadError> for GradeError {
                 expected_width,
                 expected_height,
             },
-            ReadError::Syntax {
-                format,
-                line,
-                column,
-                message,
-            } => GradeError::Syntax {
-                format,
-                line,
-                column,
-                message,
-            },
-            ReadError::WrongShape(m) => GradeError::WrongShape(m),
-            ReadError::MissingField {
-                what,
-                field,
-                needed,
-            } => GradeError::MissingField {
-                what,
-                field,
-                needed,
-            },
-            ReadError::BadValue { at, message } => GradeError::BadValue { at, message },
-            ReadError::Npy(m) => GradeError::Npy(m),
+            other => GradeError::Unreadable(other),
         }
     }
 }
@@ -266,7 +245,7 @@ mod tests {
     fn csv_missing_column_and_bad_value() {
         let e = Submission::parse(b"u,v,hit,lambda,nx,ny\n", Hint::Csv).unwrap_err();
         assert!(
-            matches!(e, GradeError::MissingField { ref field, .. } if field == "nz"),
+            matches!(e, GradeError::Unreadable(ReadError::MissingField { ref field, .. }) if field == "nz"),
             "{e}"
         );
         let e =
@@ -334,11 +313,14 @@ mod tests {
         )
         .unwrap_err();
         assert!(
-            matches!(e, GradeError::MissingField { ref field, .. } if field == "normal"),
+            matches!(e, GradeError::Unreadable(ReadError::MissingField { ref field, .. }) if field == "normal"),
             "{e}"
         );
         let e = Submission::parse(&npy("'<f8'", "(2, 2)", &[0; 32]), Hint::Auto).unwrap_err();
-        assert!(matches!(e, GradeError::WrongShape(_)), "{e}");
+        assert!(
+            matches!(e, GradeError::Unreadable(ReadError::WrongShape(_))),
+            "{e}"
+        );
         let e = Submission::parse(
             &npy(
                 "[('hit', '?'), ('lambda', '<f8'), ('normal', '<f8', (3,))]",
@@ -348,7 +330,10 @@ mod tests {
             Hint::Auto,
         )
         .unwrap_err();
-        assert!(matches!(e, GradeError::WrongShape(_)), "{e}");
+        assert!(
+            matches!(e, GradeError::Unreadable(ReadError::WrongShape(_))),
+            "{e}"
+        );
         let e = Submission::parse(
             &npy(
                 "[('hit', '?'), ('lambda', '<f8'), ('normal', '<f8', (3,))]",
@@ -358,9 +343,15 @@ mod tests {
             Hint::Auto,
         )
         .unwrap_err();
-        assert!(matches!(e, GradeError::WrongShape(_)), "{e}");
+        assert!(
+            matches!(e, GradeError::Unreadable(ReadError::WrongShape(_))),
+            "{e}"
+        );
         let e = Submission::parse(b"\x93NUMPY\x01\x00\xff\x00{'descr", Hint::Auto).unwrap_err();
-        assert!(matches!(e, GradeError::Npy(_)), "{e}");
+        assert!(
+            matches!(e, GradeError::Unreadable(ReadError::Npy(_))),
+            "{e}"
+        );
     }
 
     #[test]

@@ -58,6 +58,7 @@ use super::extract::{
     parse_choice, parse_flag, parse_param, query_pairs, read_limited,
 };
 use super::job;
+use crate::format::ReadError;
 use crate::grade::answer::{ReportForm, write_report};
 use crate::grade::{
     self, GradeError, GradeOptions, Hint, Submission, ToleranceOverrides, Tolerances,
@@ -441,9 +442,11 @@ const ENCODED: [(&str, Hint); 4] = [
 /// The submission of the JSON form as bytes and their form: hit data as JSON (an object
 /// or an array), or `{"png_base64" | "npy_base64" | "csv" | "ndjson": "…"}`.
 fn submission_member(v: Value) -> Result<(Vec<u8>, Hint), GradeError> {
-    let bad = |at: &str, message: &str| GradeError::BadValue {
-        at: at.to_owned(),
-        message: message.to_owned(),
+    let bad = |at: &str, message: &str| {
+        GradeError::Unreadable(ReadError::BadValue {
+            at: at.to_owned(),
+            message: message.to_owned(),
+        })
     };
     let encoded = match &v {
         Value::Object(m) if m.len() == 1 => m.iter().next().and_then(|(k, val)| {
@@ -586,15 +589,15 @@ mod tests {
         assert_eq!(h, Hint::Json);
         assert!(matches!(
             submission_member(serde_json::json!({"png_base64": "!!"})),
-            Err(GradeError::BadValue { .. })
+            Err(GradeError::Unreadable(ReadError::BadValue { .. }))
         ));
         assert!(matches!(
             submission_member(serde_json::json!({"png_base64": 5})),
-            Err(GradeError::BadValue { .. })
+            Err(GradeError::Unreadable(ReadError::BadValue { .. }))
         ));
         assert!(matches!(
             submission_member(serde_json::json!("x")),
-            Err(GradeError::BadValue { .. })
+            Err(GradeError::Unreadable(ReadError::BadValue { .. }))
         ));
     }
 }
