@@ -3,8 +3,6 @@
 
 use glam::DVec3;
 
-use std::borrow::Cow;
-
 use super::{CanonicalShape, plane::intersect_y0, solve_quadratic};
 use crate::geometry::{bounds::Aabb, hit::Probe, ray::Ray};
 
@@ -20,6 +18,7 @@ impl CanonicalShape for Cone {
     const NAME: &'static str = "cone";
     const CLOSED: bool = true;
     const BOUNDED_QUADRIC: bool = true;
+    const PARTS: &'static [&'static str] = &PARTS;
     const LINEAR_SIDE: bool = true;
 
     fn bounds(&self) -> Option<Aabb> {
@@ -39,10 +38,6 @@ impl CanonicalShape for Cone {
 
     fn normal(&self, object_point: DVec3, part: u32) -> DVec3 {
         normal(object_point, part)
-    }
-
-    fn part_label(&self, part: u32) -> Cow<'static, str> {
-        Cow::Borrowed(PARTS.get(part as usize).unwrap_or(&PARTS[0]))
     }
 }
 

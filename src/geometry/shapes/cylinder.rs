@@ -4,8 +4,6 @@
 
 use glam::DVec3;
 
-use std::borrow::Cow;
-
 use super::{CanonicalShape, plane::intersect_y0, solve_quadratic};
 use crate::geometry::{bounds::Aabb, hit::Probe, ray::Ray};
 
@@ -20,6 +18,7 @@ impl CanonicalShape for Cylinder {
     const NAME: &'static str = "cylinder";
     const CLOSED: bool = true;
     const BOUNDED_QUADRIC: bool = true;
+    const PARTS: &'static [&'static str] = &PARTS;
 
     fn bounds(&self) -> Option<Aabb> {
         Some(Aabb::CANONICAL)
@@ -38,10 +37,6 @@ impl CanonicalShape for Cylinder {
 
     fn normal(&self, object_point: DVec3, part: u32) -> DVec3 {
         normal(object_point, part)
-    }
-
-    fn part_label(&self, part: u32) -> Cow<'static, str> {
-        Cow::Borrowed(PARTS.get(part as usize).unwrap_or(&PARTS[0]))
     }
 }
 

@@ -64,6 +64,9 @@ pub trait CanonicalShape {
     /// Whether its side's equation can degenerate to a linear one, solved without
     /// reporting a quadratic (a cone, for rays parallel to a generator line).
     const LINEAR_SIDE: bool = false;
+    /// The labels of its parts, by part index (an unknown index reads as the first);
+    /// empty for a shape of one part, which is labelled by its name.
+    const PARTS: &'static [&'static str] = &[];
 
     /// The object-space bounds; `None` for an unbounded shape, which every ray tests.
     fn bounds(&self) -> Option<Aabb>;
@@ -109,8 +112,9 @@ pub trait CanonicalShape {
 
     /// The name of a part in explanations: a cube face's label, `"side"`, `"top"`,
     /// `"triangle 3"`; the shape's name for a shape of one part.
-    fn part_label(&self, _part: u32) -> Cow<'static, str> {
-        Cow::Borrowed(Self::NAME)
+    fn part_label(&self, part: u32) -> Cow<'static, str> {
+        let label = Self::PARTS.get(part as usize).or(Self::PARTS.first());
+        Cow::Borrowed(label.copied().unwrap_or(Self::NAME))
     }
 }
 
