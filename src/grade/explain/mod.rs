@@ -162,8 +162,9 @@ pub fn explain(r: &Renderer, u: u32, v: u32, opts: &ExplainOptions) -> Explanati
     let mut samples = Vec::new();
     if s > 1 {
         notes.push(format!(
-            "The image takes {s} × {s} samples per pixel: the ray tree is the pixel-centre \
+            "The image takes {}: the ray tree is the pixel-centre \
              ray's (as hit data uses); the final colour is the mean of the {} samples, as rendered.",
+            crate::scene::sample_grid(s),
             s * s
         ));
         // The same points, in the same order, as `Renderer::pixel_colour` averages them.
