@@ -540,3 +540,80 @@ async fn the_server_scores_and_writes_ungradable_results_like_the_command_line()
     let res = post(&app, "", form(&scene, b"not a png".to_vec())).await;
     problem(res, 422, "invalid-submission").await;
 }
+
+// ---- edge forgiveness and the half-pixel mistake --------------------------------------
+
+/// The sphere scene at 320 × 240 rendered through pixel corners instead of centres (the
+/// missing `+ ½`), by a camera-space shear in front of the scene's own placement: it
+/// moves every primary direction by `−½ · 2/w` in x and y, exactly the mistake.
+fn corner_render(dir: &tempfile::TempDir) -> (PathBuf, PathBuf) {
+    use glam::DVec3;
+    let bytes = std::fs::read(scene("sphere.json")).unwrap();
+    let mut doc: Value = serde_json::from_slice(&bytes).unwrap();
+    let reference = scene_file(dir, "reference.json", &doc);
+    let (w, f) = (320.0, doc["camera"]["focal_length"].as_f64().unwrap());
+    let la = doc["camera"]["look_at"].clone();
+    let v = |k: &str| {
+        let a: Vec<f64> = serde_json::from_value(la[k].clone()).unwrap();
+        DVec3::new(a[0], a[1], a[2])
+    };
+    // look_at as camera/look_at in the scene spec builds it.
+    let (eye, target, up) = (v("eye"), v("target"), v("up"));
+    let z = (target - eye).normalize();
+    let u = up.normalize();
+    let y = -(u - u.dot(z) * z).normalize();
+    let x = y.cross(z);
+    let k = 0.5 * 2.0 / w / f;
+    doc["camera"] = serde_json::json!({
+        "focal_length": f,
+        "transform": [
+            {"matrix": [[1, 0, -k, 0], [0, 1, -k, 0], [0, 0, 1, 0], [0, 0, 0, 1]]},
+            {"matrix": [
+                [x.x, y.x, z.x, eye.x], [x.y, y.y, z.y, eye.y], [x.z, y.z, z.z, eye.z],
+                [0, 0, 0, 1]
+            ]}
+        ]
+    });
+    let corner_scene = scene_file(dir, "corner.json", &doc);
+    let png = dir.path().join("corner.png");
+    let out = run(&["render", s(&corner_scene), "-o", s(&png)]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    (reference, png)
+}
+
+/// What `docs/grading.md` says of edge forgiveness: the tuning example passes an image
+/// traced through pixel corners, and the tolerances it suggests instead catch it.
+#[test]
+fn the_tuning_example_forgives_the_half_pixel_mistake_and_the_suggested_tolerances_do_not() {
+    let dir = tempfile::tempdir().unwrap();
+    let (reference, corner) = corner_render(&dir);
+    let verdict = |args: &[&str]| {
+        let mut a = vec!["--no-flip"];
+        a.extend_from_slice(args);
+        let r = stdout_json(&grade(&reference, &corner, &a));
+        (
+            r["pass"].as_bool().unwrap(),
+            r["failing_share"].as_f64().unwrap(),
+        )
+    };
+    let (pass, _) = verdict(&[]);
+    assert!(!pass);
+    let (pass, share) = verdict(&[
+        "--colour-abs",
+        "4",
+        "--max-fail-share",
+        "0.01",
+        "--edge-forgiving",
+    ]);
+    assert!(pass, "{share}");
+    let (pass, share) = verdict(&[
+        "--colour-abs",
+        "4",
+        "--max-fail-share",
+        "0.001",
+        "--edge-forgiving",
+    ]);
+    assert!(!pass && share > 0.002, "{share}");
+    let (pass, share) = verdict(&["--colour-abs", "4", "--max-fail-share", "0.01"]);
+    assert!(!pass && share > 0.02, "{share}");
+}
