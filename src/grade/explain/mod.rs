@@ -34,9 +34,9 @@ use crate::geometry::ray::PRIMARY_LAMBDA_MIN;
 use crate::render::shade::Shader;
 use crate::render::{RayCount, Renderer, quantise};
 pub use model::{
-    Blocker, Explanation, FaceCheck, FinalColour, HitInfo, ImageInfo, LightInfo, MaterialInfo,
-    ObjectTest, PrimaryRay, Quadratic, Ray4, RayNode, Role, Root, Sample, Secondary, Shading,
-    SpentAt, TriangleCheck, Truncation,
+    Blocker, DirectionTerms, Explanation, FaceCheck, FinalColour, HitInfo, ImageInfo, LightInfo,
+    MaterialInfo, ObjectTest, PrimaryRay, Quadratic, Ray4, RayNode, Role, Root, Sample, Secondary,
+    Shading, SpentAt, TriangleCheck, Truncation,
 };
 pub use recorder::part_label;
 use recorder::{Explainer, Recorder};
@@ -250,6 +250,7 @@ pub fn explain(r: &Renderer, u: u32, v: u32, opts: &ExplainOptions) -> Explanati
             camera: (&camera_ray).into(),
             world_from_camera: scene.camera.world_from_camera.forward_rows(),
             world: (&world_ray).into(),
+            direction_terms: DirectionTerms::new(x, y, scene.width, scene.height),
         },
         candidates: mode,
         colour: FinalColour {

@@ -170,10 +170,11 @@ pub fn to_text(e: &Explanation) -> String {
 }
 
 /// The primary direction `d` step by step, as the lecture works it out: the formula, the
-/// numbers put in, each term, and the direction the tracer uses. The terms are computed
-/// as the camera computes them (`x · 2 / w`, `h / w`), so the last line is their sum.
+/// numbers put in, each term ([`super::model::DirectionTerms`]), and the direction the
+/// tracer uses.
 fn direction_text(e: &Explanation, o: &mut String) {
     let p = &e.primary;
+    let t = &p.direction_terms;
     let (x, y) = (p.image_point[0], p.image_point[1]);
     let (w, h, f) = (
         f64::from(e.image.width),
@@ -201,9 +202,9 @@ fn direction_text(e: &Explanation, o: &mut String) {
     let _ = writeln!(
         o,
         "    = [-1 + {}, -{} + {}, {}, 0]",
-        num(x * 2.0 / w),
-        num(h / w),
-        num(y * 2.0 / w),
+        num(t.x_term),
+        num(t.aspect),
+        num(t.y_term),
         num(f)
     );
     let _ = writeln!(o, "    = {}", vec_text(&p.camera.direction));
@@ -559,8 +560,16 @@ mod tests {
     = [0, 0, 1, 0]
 ";
         assert!(text.contains(want), "missing {want:?} in\n{text}");
-        // A corner pixel: the terms are not whole numbers.
-        let text = to_text(&explain(&r, 0, 4, &ExplainOptions::default()));
+        // A corner pixel: the terms are not whole numbers. The JSON carries them too, and
+        // they add up to the direction the tracer uses.
+        let e = explain(&r, 0, 4, &ExplainOptions::default());
+        let json = serde_json::to_value(&e).unwrap();
+        assert_eq!(json["primary"]["direction_terms"]["x_term"], 0.2);
+        assert_eq!(json["primary"]["direction_terms"]["aspect"], 1.0);
+        let t = e.primary.direction_terms;
+        let d = e.primary.camera.direction;
+        assert_eq!((-1.0 + t.x_term, -t.aspect + t.y_term), (d[0], d[1]));
+        let text = to_text(&e);
         assert!(
             text.contains("    = [-1 + 0.5·2/5, -5/5 + 4.5·2/5, 1, 0]\n    = [-1 + 0.2, -1 + 1.8, 1, 0]\n    = [-0.8, 0.8, 1, 0]\n"),
             "{text}"
