@@ -2,7 +2,9 @@
 //! wrappers over [`crate::grade`] that read files and write the result.
 //!
 //! `grade` exits 0 when the submission passes, 1 when it fails, and 2 (through `main`)
-//! with one line on standard error when it cannot be graded at all.
+//! with one line on standard error when it cannot be graded at all. For a submission
+//! that cannot be graded, the Gradescope and PrairieLearn reports are still written
+//! (score 0, `gradable` false) before it exits 2, so the student sees why.
 
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
@@ -12,9 +14,15 @@ use std::sync::Arc;
 use anyhow::Context;
 
 use super::input::load_scene;
-use crate::grade::answer::{ExplanationForm, ReportForm, write_explanation, write_report};
+use crate::grade::answer::{
+    ExplanationForm, ReportForm, write_explanation, write_report, write_ungradable,
+};
 use crate::grade::explain::{self, Candidates, ExplainOptions};
-use crate::grade::{self, GradeOptions, Hint, Submission, ToleranceOverrides, Tolerances};
+use crate::grade::report::{LmsOptions, Visibility};
+use crate::grade::{
+    self, GradeError, GradeOptions, Hint, Report, ScoringOverrides, Submission, ToleranceOverrides,
+    Tolerances,
+};
 use crate::render::Renderer;
 
 /// Which objects `trace` lists for each ray.
@@ -69,10 +77,11 @@ pub struct GradeArgs {
     /// The report's form.
     #[arg(long, value_enum, default_value_t = ReportForm::Json)]
     report: ReportForm,
-    /// Write the report here instead of standard output.
+    /// Write the report here instead of standard output (missing folders are created).
     #[arg(short, long)]
     output: Option<PathBuf>,
-    /// Also write the difference image (failing pixels magenta) to this PNG.
+    /// Also write the difference image (failing pixels magenta) to this PNG (missing
+    /// folders are created).
     #[arg(long)]
     diff: Option<PathBuf>,
     /// Put the difference image in the JSON report as `diff_png_base64`.
@@ -90,9 +99,17 @@ pub struct GradeArgs {
     /// Skip the FLIP metric (it is the slowest part on large images).
     #[arg(long)]
     no_flip: bool,
-    /// Points for a pass in the Gradescope report.
+    #[command(flatten)]
+    scoring: ScoringOverrides,
+    /// Points for a full score in the Gradescope report.
     #[arg(long, default_value_t = 1.0)]
     max_score: f64,
+    /// Gradescope: when students see the results and tests.
+    #[arg(long, value_enum, default_value_t = Visibility::Visible)]
+    visibility: Visibility,
+    /// Gradescope: when students see the autograder's standard output.
+    #[arg(long, value_enum, default_value_t = Visibility::Visible)]
+    stdout_visibility: Visibility,
     /// Rayon worker threads (default: one per core).
     #[arg(long, env = "RAYTILE_THREADS")]
     threads: Option<usize>,
@@ -157,28 +174,115 @@ fn tolerances(a: &GradeArgs) -> anyhow::Result<Tolerances> {
     Ok(t)
 }
 
+/// Writes `bytes` to `p`, creating its missing folders first (PrairieLearn does not
+/// create `/grade/results`).
+fn write_file(p: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create the folder {}", dir.display()))?;
+    }
+    std::fs::write(p, bytes).with_context(|| format!("cannot write {}", p.display()))
+}
+
+/// Writes the report's bytes to `-o`, or to standard output.
+fn write_output(a: &GradeArgs, bytes: &[u8]) -> anyhow::Result<()> {
+    match &a.output {
+        Some(p) => write_file(p, bytes),
+        None => Ok(std::io::stdout().write_all(bytes)?),
+    }
+}
+
+/// Why a submission could not be graded, when it is the submission's fault (what the
+/// grader formats report as ungradable); other errors pass through.
+enum Failure {
+    Submission(String),
+    Other(anyhow::Error),
+}
+
+impl From<anyhow::Error> for Failure {
+    fn from(e: anyhow::Error) -> Self {
+        Failure::Other(e)
+    }
+}
+
+fn lms_options(a: &GradeArgs) -> LmsOptions {
+    LmsOptions {
+        max_score: a.max_score,
+        visibility: a.visibility,
+        stdout_visibility: a.stdout_visibility,
+    }
+}
+
 /// `raytile grade`.
 pub fn grade(a: GradeArgs) -> anyhow::Result<ExitCode> {
     let tol = tolerances(&a)?;
+    let scoring = a.scoring.apply(grade::Scoring::default());
+    scoring.check(&tol)?;
+    if !(a.max_score.is_finite() && a.max_score >= 0.0) {
+        anyhow::bail!(
+            "--max-score must be a finite number ≥ 0, not {}",
+            a.max_score
+        );
+    }
     let r = renderer(&a.scene)?;
+    let lms = lms_options(&a);
+    match graded(&a, &r, &tol, scoring) {
+        Ok(rep) => {
+            if let Some(p) = &a.diff {
+                write_file(p, &write_report(&rep, ReportForm::DiffPng, &lms)?)?;
+            }
+            write_output(&a, &write_report(&rep, a.report, &lms)?)?;
+            Ok(if rep.pass {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(1)
+            })
+        }
+        Err(Failure::Submission(reason)) => {
+            if let Some(bytes) = write_ungradable(&reason, a.report, &lms)? {
+                write_output(&a, &bytes)?;
+            }
+            Err(anyhow::anyhow!(reason))
+        }
+        Err(Failure::Other(e)) => Err(e),
+    }
+}
+
+/// Reads, parses and grades the submission.
+fn graded(
+    a: &GradeArgs,
+    r: &Renderer,
+    tol: &Tolerances,
+    scoring: grade::Scoring,
+) -> Result<Report, Failure> {
+    let what = a.submission.display();
     let bytes = if a.submission == Path::new("-") {
         let mut b = Vec::new();
-        std::io::stdin()
-            .read_to_end(&mut b)
-            .context("cannot read the submission from standard input")?;
+        std::io::stdin().read_to_end(&mut b).map_err(|e| {
+            Failure::Submission(format!(
+                "cannot read the submission from standard input: {e}"
+            ))
+        })?;
         b
     } else {
         std::fs::read(&a.submission)
-            .with_context(|| format!("cannot read {}", a.submission.display()))?
+            .map_err(|e| Failure::Submission(format!("cannot read {what}: {e}")))?
+    };
+    let blame = |e: GradeError| {
+        if e.is_submissions_fault() {
+            Failure::Submission(format!("{what}: {e}"))
+        } else {
+            Failure::Other(anyhow::Error::new(e).context(format!("{what}")))
+        }
     };
     let hint = a.format.unwrap_or_else(|| Hint::from_path(&a.submission));
-    let what = a.submission.display();
-    let submission = Submission::parse_for_frame(&bytes, hint, r.scene.width, r.scene.height)
-        .with_context(|| format!("{what}"))?;
+    let submission =
+        Submission::parse_for_frame(&bytes, hint, r.scene.width, r.scene.height).map_err(blame)?;
     let opts = GradeOptions {
         worst: a.worst,
         inline_diff: a.inline_diff,
         flip: !a.no_flip,
+        scoring,
         ..Default::default()
     };
     let pool = {
@@ -186,27 +290,12 @@ pub fn grade(a: GradeArgs) -> anyhow::Result<ExitCode> {
         if let Some(n) = a.threads {
             b = b.num_threads(n.max(1));
         }
-        b.build().context("cannot start the worker threads")?
+        b.build()
+            .context("cannot start the worker threads")
+            .map_err(Failure::Other)?
     };
-    let rep = pool
-        .install(|| grade::grade(&r, submission, &tol, &opts))
-        .with_context(|| format!("{what}"))?;
-    if let Some(p) = &a.diff {
-        std::fs::write(p, write_report(&rep, ReportForm::DiffPng, a.max_score)?)
-            .with_context(|| format!("cannot write {}", p.display()))?;
-    }
-    let bytes = write_report(&rep, a.report, a.max_score)?;
-    match &a.output {
-        Some(p) => {
-            std::fs::write(p, bytes).with_context(|| format!("cannot write {}", p.display()))?
-        }
-        None => std::io::stdout().write_all(&bytes)?,
-    }
-    Ok(if rep.pass {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::from(1)
-    })
+    pool.install(|| grade::grade(r, submission, tol, &opts))
+        .map_err(blame)
 }
 
 #[cfg(test)]

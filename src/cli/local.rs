@@ -65,11 +65,11 @@ pub fn validate(a: ValidateArgs) -> anyhow::Result<ExitCode> {
                 println!("{}", serde_json::to_string_pretty(&s.normalised())?);
             } else {
                 println!(
-                    "{}: valid: {} × {} pixels, {} samples per pixel, {} objects, {} triangles, {} lights",
+                    "{}: valid: {} × {} pixels, {}, {} objects, {} triangles, {} lights",
                     a.scene.display(),
                     s.width,
                     s.height,
-                    s.samples * s.samples,
+                    scene::sample_grid(s.samples),
                     s.objects.len(),
                     s.triangles(),
                     s.lights.len()

@@ -25,6 +25,7 @@ pub mod explain;
 pub mod image;
 pub mod metrics;
 pub mod report;
+pub mod score;
 pub mod submission;
 
 use std::sync::Mutex;
@@ -40,6 +41,7 @@ use crate::render::{
 pub use explain::{ExplainOptions, Explanation, explain};
 pub use image::RgbImage;
 pub use report::Report;
+pub use score::{Score, Scoring, ScoringMode, ScoringOverrides};
 pub use submission::{Hint, Submission};
 
 /// When a submission passes. Every field has a default; unknown fields are an error.
@@ -142,6 +144,8 @@ pub struct GradeOptions {
     pub inline_diff: bool,
     /// Compute FLIP for images (default true; it costs about as much as the SSIM).
     pub flip: bool,
+    /// How the score is computed (default all or nothing).
+    pub scoring: Scoring,
     /// Stops rendering the reference (a deadline, a client that left).
     #[serde(skip)]
     pub cancel: Cancel,
@@ -153,6 +157,7 @@ impl Default for GradeOptions {
             worst: 10,
             inline_diff: false,
             flip: true,
+            scoring: Scoring::default(),
             cancel: Cancel::new(),
         }
     }
@@ -229,12 +234,35 @@ pub enum GradeError {
         /// The range it must be in.
         message: String,
     },
+    /// A scoring setting out of range.
+    #[error("the scoring setting `{field}` {message}")]
+    BadScoring {
+        /// Which.
+        field: &'static str,
+        /// The range it must be in.
+        message: String,
+    },
     /// The grading was cancelled before the reference was rendered.
     #[error("the grading was cancelled")]
     Cancelled,
     /// The reference could not be rendered (not the submission's fault).
     #[error("the reference could not be rendered: {0}")]
     Reference(String),
+}
+
+impl GradeError {
+    /// Whether the submission is to blame (what a student must fix), rather than the
+    /// grader's settings or the reference: the grader formats then report it as
+    /// ungradable instead of failing.
+    pub fn is_submissions_fault(&self) -> bool {
+        !matches!(
+            self,
+            GradeError::BadTolerance { .. }
+                | GradeError::BadScoring { .. }
+                | GradeError::Cancelled
+                | GradeError::Reference(_)
+        )
+    }
 }
 
 /// Collects a whole frame's pixels, row-major, from tiles in any order.
@@ -370,6 +398,7 @@ pub fn grade(
     opts: &GradeOptions,
 ) -> Result<Report, GradeError> {
     tol.check()?;
+    opts.scoring.check(tol)?;
     let (w, h) = (r.scene.width, r.scene.height);
     match submission {
         Submission::Image(img) => {

@@ -4,8 +4,9 @@
 //! a PNG ([`Report::diff_png`]).
 //!
 //! The verdict: a submission passes when at most `floor(max_fail_share × pixels)` of its
-//! pixels fail. Scores in the grader formats are all or nothing (full marks on a pass),
-//! with the per-check counts alongside as information.
+//! pixels fail. The score ([`Score`], in [`super::score`]) follows the instructor's
+//! scoring mode; every form carries it with its formula, and in the grader formats the
+//! scored tests' points add up to it.
 
 use std::fmt::Write as _;
 
@@ -16,6 +17,7 @@ use serde_json::{Value, json};
 use super::compare::{Comparison, HitCounts, PixelValue, WorstPixel};
 use super::image::RgbImage;
 use super::metrics::{ErrorStats, FlipStats};
+use super::score::{self, Score};
 use super::{GradeOptions, Tolerances};
 
 /// PrairieLearn refuses results files of 1 MB or more.
@@ -44,6 +46,8 @@ pub struct Report {
     pub format: &'static str,
     /// The verdict in one sentence.
     pub summary: String,
+    /// The score, 0–1, and how it was reached.
+    pub score: Score,
     /// Image width.
     pub width: u32,
     /// Image height.
@@ -128,11 +132,23 @@ impl Report {
                 String::new()
             }
         );
+        let score = score::score(
+            &opts.scoring,
+            tol,
+            score::Counts {
+                pixels,
+                failing: cmp.failing,
+                max_failing,
+                hits: cmp.hits.as_ref(),
+                mean_abs_error: image.as_ref().map(|m| m.errors.mean_abs_error),
+            },
+        );
         let mut r = Report {
             pass,
             kind,
             format,
             summary,
+            score,
             width,
             height,
             pixels,
@@ -229,10 +245,28 @@ fn worst_text(r: &Report, limit: usize) -> String {
     o
 }
 
-/// The report as readable text.
+/// The report as readable text: one section after another, each written by its own
+/// function, so that a section can be added without touching the others.
 pub fn to_text(r: &Report) -> String {
     let mut o = String::new();
+    for section in [
+        summary_text,
+        tolerances_text,
+        score_text,
+        image_text,
+        hits_text,
+        worst_section_text,
+    ] {
+        section(r, &mut o);
+    }
+    o
+}
+
+fn summary_text(r: &Report, o: &mut String) {
     let _ = writeln!(o, "{}", r.summary);
+}
+
+fn tolerances_text(r: &Report, o: &mut String) {
     let t = &r.tolerances;
     let _ = writeln!(
         o,
@@ -243,56 +277,149 @@ pub fn to_text(r: &Report) -> String {
         num(t.max_fail_share),
         if t.edge_forgiving { "on" } else { "off" }
     );
-    if let Some(m) = &r.image {
-        let _ = writeln!(
-            o,
-            "Image: max error {}/255, mean {:.4}/255, PSNR {}, SSIM {:.6}",
-            m.errors.max_abs_error,
-            m.errors.mean_abs_error,
-            m.errors
-                .psnr_db
-                .map_or("∞ (identical)".into(), |p| format!("{p:.2} dB")),
-            m.ssim
-        );
-        if let Some(f) = &m.flip {
+}
+
+/// `Score: 0.5 of 1 (linear: …)`, and for hit data one line per part.
+fn score_text(r: &Report, o: &mut String) {
+    let s = &r.score;
+    let _ = writeln!(o, "Score: {} of 1 ({})", score::short(s.value), s.formula);
+    if s.parts.len() > 1 {
+        for p in &s.parts {
             let _ = writeln!(
                 o,
-                "FLIP: mean {:.5}, median {:.5}, 95th percentile {:.5}, 99th {:.5}, max {:.5}",
-                f.mean, f.p50, f.p95, f.p99, f.max
+                "  {} (weight {}): {}",
+                p.name,
+                score::short(p.weight),
+                p.formula
             );
         }
     }
-    if let Some(c) = &r.hits {
+}
+
+fn image_text(r: &Report, o: &mut String) {
+    let Some(m) = &r.image else { return };
+    let _ = writeln!(
+        o,
+        "Image: max error {}/255, mean {:.4}/255, PSNR {}, SSIM {:.6}",
+        m.errors.max_abs_error,
+        m.errors.mean_abs_error,
+        m.errors
+            .psnr_db
+            .map_or("∞ (identical)".into(), |p| format!("{p:.2} dB")),
+        m.ssim
+    );
+    if let Some(f) = &m.flip {
         let _ = writeln!(
             o,
-            "Hit data: {} pixel(s) hit/miss wrong, {} wrong object, {} λ out of tolerance, {} normal out of tolerance",
-            c.hit_miss, c.wrong_object, c.lambda, c.normal
+            "FLIP: mean {:.5}, median {:.5}, 95th percentile {:.5}, 99th {:.5}, max {:.5}",
+            f.mean, f.p50, f.p95, f.p99, f.max
         );
-        if let (Some(l), Some(a)) = (c.max_lambda_rel_error, c.max_normal_angle_degrees) {
-            let _ = writeln!(
-                o,
-                "Where both hit: largest λ relative error {l:.3e}, largest normal angle {a:.4}°"
-            );
-        }
     }
+}
+
+fn hits_text(r: &Report, o: &mut String) {
+    let Some(c) = &r.hits else { return };
+    let _ = writeln!(
+        o,
+        "Hit data: {} pixel(s) hit/miss wrong, {} wrong object, {} λ out of tolerance, {} normal out of tolerance",
+        c.hit_miss, c.wrong_object, c.lambda, c.normal
+    );
+    if let (Some(l), Some(a)) = (c.max_lambda_rel_error, c.max_normal_angle_degrees) {
+        let _ = writeln!(
+            o,
+            "Where both hit: largest λ relative error {l:.3e}, largest normal angle {a:.4}°"
+        );
+    }
+}
+
+fn worst_section_text(r: &Report, o: &mut String) {
     if !r.worst.is_empty() {
         let _ = writeln!(o, "Worst pixels (u, v):");
         o.push_str(&worst_text(r, r.worst.len()));
     }
-    o
 }
 
+/// When a Gradescope test, or all its results, are shown to students.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Visibility {
+    /// Never shown to students.
+    #[value(name = "hidden")]
+    Hidden,
+    /// Shown once the assignment's due date has passed.
+    #[value(name = "after_due_date")]
+    AfterDueDate,
+    /// Shown once the grades are published.
+    #[value(name = "after_published")]
+    AfterPublished,
+    /// Always shown.
+    #[default]
+    #[value(name = "visible")]
+    Visible,
+}
+
+impl Visibility {
+    /// Gradescope's name for it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Visibility::Hidden => "hidden",
+            Visibility::AfterDueDate => "after_due_date",
+            Visibility::AfterPublished => "after_published",
+            Visibility::Visible => "visible",
+        }
+    }
+
+    /// The visibility Gradescope names `name`, if any.
+    pub fn from_name(name: &str) -> Option<Visibility> {
+        [
+            Visibility::Hidden,
+            Visibility::AfterDueDate,
+            Visibility::AfterPublished,
+            Visibility::Visible,
+        ]
+        .into_iter()
+        .find(|v| v.name() == name)
+    }
+}
+
+/// What the grader formats need beyond the report: the points of a full score
+/// (Gradescope), and when Gradescope shows the results and the autograder's standard
+/// output to students.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LmsOptions {
+    /// Points for a full score in the Gradescope report (default 1).
+    pub max_score: f64,
+    /// Gradescope's `visibility` of the results and of each test (default `visible`).
+    pub visibility: Visibility,
+    /// Gradescope's `stdout_visibility` (default `visible`).
+    pub stdout_visibility: Visibility,
+}
+
+impl Default for LmsOptions {
+    fn default() -> Self {
+        LmsOptions {
+            max_score: 1.0,
+            visibility: Visibility::Visible,
+            stdout_visibility: Visibility::Visible,
+        }
+    }
+}
+
+/// A test of a grader format: a scored one carries its share of the marks (the scored
+/// tests' shares add up to 1, their points to the score); an informational one none.
+struct LmsTest {
+    name: String,
+    /// `(points, max_points)` as shares of a full score; `None` for information.
+    points: Option<(f64, f64)>,
+    pass: bool,
+    output: String,
+}
+
+/// Each check as (name, passes, what it found).
 fn checks(r: &Report) -> Vec<(String, bool, String)> {
     let allowed = r.max_failing_pixels;
     match &r.hits {
-        None => vec![(
-            format!("Colour within ±{}/255 per channel", r.tolerances.colour_abs),
-            r.pass,
-            format!(
-                "{} failing pixel(s), at most {allowed} allowed",
-                r.failing_pixels
-            ),
-        )],
+        None => Vec::new(),
         Some(c) => [
             ("Hit or miss", c.hit_miss),
             ("Object hit", c.wrong_object),
@@ -311,68 +438,225 @@ fn checks(r: &Report) -> Vec<(String, bool, String)> {
     }
 }
 
-/// Gradescope's `results.json`: `max_score` on a pass, 0 on a fail; one test carrying
-/// the score and, for hit data, one informational test (0 points) per check.
-pub fn to_gradescope(r: &Report, max_score: f64) -> Value {
-    let score = if r.pass { max_score } else { 0.0 };
-    let status = |ok: bool| if ok { "passed" } else { "failed" };
-    let mut tests = vec![json!({
-        "name": "Matches the reference",
-        "score": score,
-        "max_score": max_score,
-        "status": status(r.pass),
-        "output": format!("{}\n{}", r.summary, worst_text(r, r.worst.len())),
-        "visibility": "visible",
-    })];
-    if r.kind == "hits" {
-        for (name, ok, output) in checks(r) {
-            tests.push(json!({
-                "name": name,
-                "score": 0.0,
-                "max_score": 0.0,
-                "status": status(ok),
-                "output": output,
-                "visibility": "visible",
-            }));
+/// The tests of both grader formats: the score's parts, scored, then the checks that
+/// carry no marks as information (for hit data scored all or nothing, the four checks;
+/// for hit data scored per kind, the verdict).
+fn lms_tests(r: &Report, worst_shown: usize) -> Vec<LmsTest> {
+    let verdict_output = || {
+        format!(
+            "{}\n{}",
+            r.summary,
+            worst_text_limited(r, worst_shown).trim_end()
+        )
+    };
+    let mut tests: Vec<LmsTest> = r
+        .score
+        .parts
+        .iter()
+        .map(|p| {
+            let found = match p.check {
+                "colour" | "hits" => verdict_output(),
+                _ => checks(r)
+                    .into_iter()
+                    .find(|(name, ..)| name == p.name)
+                    .map_or_else(String::new, |(.., found)| found),
+            };
+            LmsTest {
+                name: p.name.to_owned(),
+                points: Some((p.points, p.weight)),
+                pass: p.score >= 1.0,
+                output: format!("{found}\nScore: {}", p.formula),
+            }
+        })
+        .collect();
+    let scored_per_kind = r.score.parts.len() > 1;
+    if scored_per_kind {
+        tests.push(LmsTest {
+            name: "Matches the reference".into(),
+            points: None,
+            pass: r.pass,
+            output: verdict_output(),
+        });
+    } else {
+        for (name, pass, output) in checks(r) {
+            tests.push(LmsTest {
+                name,
+                points: None,
+                pass,
+                output,
+            });
         }
     }
+    tests
+}
+
+fn worst_text_limited(r: &Report, limit: usize) -> String {
+    worst_text(r, limit.min(r.worst.len()))
+}
+
+/// Text as a Markdown code block, so that Gradescope's `md` format keeps its layout.
+fn md_block(text: &str) -> String {
+    format!("```text\n{}\n```", text.trim_end())
+}
+
+fn status(pass: bool) -> &'static str {
+    if pass { "passed" } else { "failed" }
+}
+
+/// The top of a Gradescope `results.json`, without tests.
+fn gradescope_top(score: f64, output: String, lms: &LmsOptions) -> Value {
     json!({
         "score": score,
-        "max_score": max_score,
-        "output": to_text(r),
-        "visibility": "visible",
-        "stdout_visibility": "visible",
-        "tests": tests,
+        "max_score": lms.max_score,
+        "output": output,
+        "output_format": "md",
+        "test_output_format": "md",
+        "test_name_format": "text",
+        "visibility": lms.visibility.name(),
+        "stdout_visibility": lms.stdout_visibility.name(),
+        "tests": [],
     })
 }
 
-/// PrairieLearn's results: `score` 1 on a pass, 0 on a fail, the checks as tests, and the
-/// difference image inline. The file is kept under [`PRAIRIELEARN_MAX_BYTES`]: the list of
-/// worst pixels is shortened first, then the image halved (failing pixels kept visible),
-/// and if that is still too large the image is left out; the message says which.
-pub fn to_prairielearn(r: &Report) -> Value {
-    let score = if r.pass { 1.0 } else { 0.0 };
-    let mut tests = vec![json!({
-        "name": "Matches the reference",
-        "points": score,
-        "max_points": 1.0,
-        "message": r.summary,
-        "output": worst_text(r, r.worst.len()),
-    })];
-    for (name, ok, output) in checks(r) {
-        tests.push(json!({
-            "name": name,
-            "points": if ok { 1.0 } else { 0.0 },
-            "max_points": 1.0,
-            "output": output,
-        }));
+/// Gradescope's `results.json`: `score` is the report's score × `max_score`, and the
+/// tests' scores add up to it (section 1 of the grading guide); outputs are Markdown
+/// (`output_format`, `test_output_format` `md`) with the text in code blocks, and the
+/// difference image is a last, informational test in `html`, as a `data:` URL.
+pub fn to_gradescope(r: &Report, lms: &LmsOptions) -> Value {
+    let scale = lms.max_score;
+    let mut doc = gradescope_top(r.score.value * scale, md_block(&to_text(r)), lms);
+    let mut tests: Vec<Value> = lms_tests(r, r.worst.len())
+        .into_iter()
+        .map(|t| {
+            let mut v = json!({
+                "name": t.name,
+                "status": status(t.pass),
+                "output": md_block(&t.output),
+                "visibility": lms.visibility.name(),
+            });
+            if let Some((points, max)) = t.points {
+                v["score"] = json!(points * scale);
+                v["max_score"] = json!(max * scale);
+            }
+            v
+        })
+        .collect();
+    let (image, notes) = fit_diff_image(r, GRADESCOPE_IMAGE_MAX_BYTES, "the image budget");
+    let image_html = match image {
+        Some((label, url)) => format!("<p>{}</p><img src=\"{url}\" alt=\"{label}\">", label),
+        None => String::new(),
+    };
+    let note_html: String = notes.iter().map(|n| format!("<p>{n}</p>")).collect();
+    tests.push(json!({
+        "name": "Difference image",
+        "status": status(r.pass),
+        "output": format!("{image_html}{note_html}"),
+        "output_format": "html",
+        "visibility": lms.visibility.name(),
+    }));
+    doc["tests"] = Value::Array(tests);
+    doc
+}
+
+/// Gradescope's `results.json` for a submission that cannot be graded: score 0 and
+/// the reason, in the output and in a single failed test that carries the marks.
+pub fn gradescope_ungradable(reason: &str, lms: &LmsOptions) -> Value {
+    let text = format!("The submission could not be graded: {reason}");
+    let mut doc = gradescope_top(0.0, md_block(&text), lms);
+    doc["tests"] = json!([{
+        "name": "The submission can be graded",
+        "score": 0.0,
+        "max_score": lms.max_score,
+        "status": "failed",
+        "output": md_block(&text),
+        "visibility": lms.visibility.name(),
+    }]);
+    doc
+}
+
+/// PrairieLearn's results for a submission that cannot be graded: `gradable` false and
+/// the reason in `format_errors`, so the student loses no attempt and sees why.
+pub fn prairielearn_ungradable(reason: &str) -> Value {
+    json!({
+        "gradable": false,
+        "format_errors": [reason],
+        "message": format!("The submission could not be graded: {reason}"),
+    })
+}
+
+/// Gradescope states no size limit; the image is kept as small as PrairieLearn's.
+pub const GRADESCOPE_IMAGE_MAX_BYTES: usize = PRAIRIELEARN_MAX_BYTES / 2;
+
+/// The difference image as a `(label, data: URL)` no longer than `budget` bytes: halved
+/// (failing pixels kept visible) until it fits, left out if even one pixel does not;
+/// with notes saying which. `limit` names the limit in the notes.
+fn fit_diff_image(
+    r: &Report,
+    budget: usize,
+    limit: &str,
+) -> (Option<(String, String)>, Vec<String>) {
+    let mut notes = Vec::new();
+    let mut img = r.diff.clone();
+    loop {
+        let png = img.encode_png();
+        let b64_len = png.len().div_ceil(3) * 4 + "data:image/png;base64,".len();
+        if !png.is_empty() && b64_len <= budget {
+            let label = if (img.width, img.height) == (r.diff.width, r.diff.height) {
+                "Difference: failing pixels in magenta over the dimmed reference".to_owned()
+            } else {
+                notes.push(format!(
+                    "The difference image was downscaled from {} × {} to {} × {} to stay under {limit}.",
+                    r.diff.width, r.diff.height, img.width, img.height
+                ));
+                format!(
+                    "Difference (downscaled to {} × {}): failing pixels in magenta",
+                    img.width, img.height
+                )
+            };
+            let url = format!(
+                "data:image/png;base64,{}",
+                base64::engine::general_purpose::STANDARD.encode(&png)
+            );
+            return (Some((label, url)), notes);
+        }
+        if img.width <= 1 && img.height <= 1 || png.is_empty() {
+            notes.push(format!(
+                "The difference image was left out: it does not fit {limit}."
+            ));
+            return (None, notes);
+        }
+        img = img.halve(super::compare::FAIL_RGB);
     }
+}
+
+/// PrairieLearn's results: `score` is the report's score (0–1), the tests' points add up
+/// to it (the scored tests' `max_points` to 1; informational tests carry 0 of 0), and
+/// the difference image is inline. The file is kept under [`PRAIRIELEARN_MAX_BYTES`]:
+/// the list of worst pixels is shortened first, then the image halved (failing pixels
+/// kept visible), and if that is still too large the image is left out; the message
+/// says which.
+pub fn to_prairielearn(r: &Report) -> Value {
+    let tests_json = |shown: usize| -> Value {
+        lms_tests(r, shown)
+            .into_iter()
+            .map(|t| {
+                let (points, max) = t.points.unwrap_or((0.0, 0.0));
+                json!({
+                    "name": t.name,
+                    "points": points,
+                    "max_points": max,
+                    "message": if t.pass { "passed" } else { "failed" },
+                    "output": t.output,
+                })
+            })
+            .collect()
+    };
     let mut doc = json!({
         "gradable": true,
-        "score": score,
+        "score": r.score.value,
         "message": r.summary,
         "output": to_text(r),
-        "tests": tests,
+        "tests": tests_json(r.worst.len()),
         "images": [],
     });
     let size = |d: &Value| serde_json::to_vec(d).map_or(usize::MAX, |v| v.len());
@@ -387,42 +671,12 @@ pub fn to_prairielearn(r: &Report) -> Value {
         });
         text.push_str(&format!("(only the {shown} worst pixels are listed)\n"));
         doc["output"] = Value::String(text);
-        doc["tests"][0]["output"] = Value::String(worst_text(r, shown));
+        doc["tests"] = tests_json(shown);
     }
-    let mut notes = Vec::new();
-    let mut img = r.diff.clone();
     let budget = PRAIRIELEARN_MAX_BYTES.saturating_sub(size(&doc) + 512);
-    loop {
-        let png = img.encode_png();
-        let b64_len = png.len().div_ceil(3) * 4 + "data:image/png;base64,".len();
-        if !png.is_empty() && b64_len <= budget {
-            let label = if (img.width, img.height) == (r.diff.width, r.diff.height) {
-                "Difference: failing pixels in magenta over the dimmed reference".to_owned()
-            } else {
-                notes.push(format!(
-                    "The difference image was downscaled from {} × {} to {} × {} to stay under PrairieLearn's 1 MB limit.",
-                    r.diff.width, r.diff.height, img.width, img.height
-                ));
-                format!(
-                    "Difference (downscaled to {} × {}): failing pixels in magenta",
-                    img.width, img.height
-                )
-            };
-            doc["images"] = json!([{
-                "label": label,
-                "url": format!("data:image/png;base64,{}",
-                    base64::engine::general_purpose::STANDARD.encode(&png)),
-            }]);
-            break;
-        }
-        if img.width <= 1 && img.height <= 1 || png.is_empty() {
-            notes.push(
-                "The difference image was left out: it does not fit PrairieLearn's 1 MB limit."
-                    .to_owned(),
-            );
-            break;
-        }
-        img = img.halve(super::compare::FAIL_RGB);
+    let (image, notes) = fit_diff_image(r, budget, "PrairieLearn's 1 MB limit");
+    if let Some((label, url)) = image {
+        doc["images"] = json!([{ "label": label, "url": url }]);
     }
     if !notes.is_empty() {
         doc["message"] = Value::String(format!("{} {}", r.summary, notes.join(" ")));
@@ -489,7 +743,11 @@ mod tests {
     #[test]
     fn gradescope_shape() {
         let a = noisy(4, 4, 2);
-        let g = to_gradescope(&report(&a, &a, &Tolerances::default()), 10.0);
+        let lms = LmsOptions {
+            max_score: 10.0,
+            ..Default::default()
+        };
+        let g = to_gradescope(&report(&a, &a, &Tolerances::default()), &lms);
         assert_eq!(g["score"], 10.0);
         assert_eq!(g["max_score"], 10.0);
         assert_eq!(g["tests"][0]["status"], "passed");

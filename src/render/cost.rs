@@ -307,7 +307,7 @@ impl TooCostly {
         let s = scene.samples;
         out.push(Problem::new(
             image.key("samples").as_str(),
-            format!("{s} × {s} samples per pixel: {tail}"),
+            format!("{}: {tail}", crate::scene::sample_grid(s)),
         ));
         if self.estimate.branching.is_empty() {
             return out;

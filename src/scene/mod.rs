@@ -49,6 +49,26 @@ pub struct Scene {
     pub document: SceneDoc,
 }
 
+/// The anti-aliasing sample grid in the lecture's words, as every message that names it
+/// writes it: `s × s samples per pixel`, and `1 sample per pixel` (the lecture's single
+/// ray through the pixel's centre) for `s = 1`.
+pub fn sample_grid(s: u32) -> String {
+    if s == 1 {
+        "1 sample per pixel".into()
+    } else {
+        format!("{s} × {s} samples per pixel")
+    }
+}
+
+#[cfg(test)]
+mod sample_grid_tests {
+    #[test]
+    fn the_grid_is_named_as_the_lecture_names_it() {
+        assert_eq!(super::sample_grid(1), "1 sample per pixel");
+        assert_eq!(super::sample_grid(2), "2 × 2 samples per pixel");
+    }
+}
+
 impl Scene {
     /// Builds the acceleration structure over the objects.
     pub fn world(&self) -> World {

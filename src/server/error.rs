@@ -158,7 +158,9 @@ impl ApiError {
         match e {
             GradeError::Cancelled => ApiError::DeadlineExceeded(deadline),
             GradeError::Reference(why) => ApiError::ReferenceFailed(why),
-            GradeError::BadTolerance { .. } => ApiError::BadRequest(e.to_string()),
+            GradeError::BadTolerance { .. } | GradeError::BadScoring { .. } => {
+                ApiError::BadRequest(e.to_string())
+            }
             other => ApiError::InvalidSubmission(other),
         }
     }
@@ -183,6 +185,7 @@ fn submission_reason(e: &GradeError) -> &'static str {
         GradeError::DuplicatePixel { .. } => "duplicate-pixel",
         GradeError::MissingPixels { .. } => "missing-pixels",
         GradeError::BadTolerance { .. } => "bad-tolerance",
+        GradeError::BadScoring { .. } => "bad-scoring",
         GradeError::Cancelled => "cancelled",
         GradeError::Reference(_) => "reference",
     }

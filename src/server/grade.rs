@@ -24,7 +24,10 @@
 //! `max_fail_share`, `lambda_rel`, `normal_degrees`, `edge_forgiving`, each overriding
 //! the body's `tolerances`), `worst`, `inline_diff`, `flip`, `format` (the submission's
 //! form, overriding the part's), `report` (`json`, `text`, `gradescope`,
-//! `prairielearn`), `max_score`, and `output=diff` for the difference image as a PNG.
+//! `prairielearn`), `max_score`, `visibility`, `stdout_visibility`, the scoring
+//! (`scoring`, `zero_share`, `error_k`, `weight_*`), and `output=diff` for the
+//! difference image as a PNG. A submission that cannot be graded is 422, except in the
+//! grader forms: their ungradable results file, with `X-Raytile-Verdict: ungradable`.
 //! The answers are the bytes `raytile grade` writes, from the same function
 //! ([`crate::grade::answer::write_report`]); `X-Raytile-Verdict` is `pass` or `fail`, so
 //! even the difference image carries the verdict.
@@ -59,9 +62,12 @@ use super::extract::{
 };
 use super::job;
 use crate::format::ReadError;
-use crate::grade::answer::{ReportForm, write_report};
+use crate::grade::answer::{ReportForm, write_report, write_ungradable};
+use crate::grade::report::{LmsOptions, Visibility};
+use crate::grade::score::ScoringMode;
 use crate::grade::{
-    self, GradeError, GradeOptions, Hint, Submission, ToleranceOverrides, Tolerances,
+    self, GradeError, GradeOptions, Hint, Scoring, ScoringOverrides, Submission,
+    ToleranceOverrides, Tolerances,
 };
 use crate::json;
 use crate::render::{Renderer, Work};
@@ -106,6 +112,49 @@ pub struct GradeQuery {
     pub max_score: Option<f64>,
     /// The submission's form, overriding what the request says of it.
     pub format: Option<Hint>,
+    /// `scoring`, `zero_share`, `error_k`, `weight_hit_miss`, `weight_object`,
+    /// `weight_lambda`, `weight_normal`.
+    pub scoring: ScoringOverrides,
+    /// Gradescope's `visibility` and `stdout_visibility`.
+    pub visibility: Option<Visibility>,
+    /// Gradescope's `stdout_visibility`.
+    pub stdout_visibility: Option<Visibility>,
+}
+
+/// Reads one of the scoring and Gradescope parameters into `q`; `false` when `k` is
+/// none of them.
+fn scoring_param(q: &mut GradeQuery, k: &str, v: &str) -> Result<bool, ApiError> {
+    let weight = |v: &str| parse_param::<f64>(k, v, "a number ≥ 0");
+    let visibility = |v: &str| {
+        Visibility::from_name(v).ok_or_else(|| {
+            ApiError::BadRequest(format!(
+                "query parameter `{k}` must be `hidden`, `after_due_date`, `after_published` \
+                 or `visible`, not `{v}`"
+            ))
+        })
+    };
+    let s = &mut q.scoring;
+    match k {
+        "scoring" => {
+            let m = ScoringMode::from_name(v).ok_or_else(|| {
+                ApiError::BadRequest(format!(
+                    "query parameter `scoring` must be `all-or-nothing`, `linear` or `error`, \
+                     not `{v}`"
+                ))
+            })?;
+            once(&mut s.scoring, k, m)?;
+        }
+        "zero_share" => once(&mut s.zero_share, k, parse_param(k, v, "a number")?)?,
+        "error_k" => once(&mut s.error_k, k, parse_param(k, v, "a number")?)?,
+        "weight_hit_miss" => once(&mut s.weight_hit_miss, k, weight(v)?)?,
+        "weight_object" => once(&mut s.weight_object, k, weight(v)?)?,
+        "weight_lambda" => once(&mut s.weight_lambda, k, weight(v)?)?,
+        "weight_normal" => once(&mut s.weight_normal, k, weight(v)?)?,
+        "visibility" => once(&mut q.visibility, k, visibility(v)?)?,
+        "stdout_visibility" => once(&mut q.stdout_visibility, k, visibility(v)?)?,
+        _ => return Ok(false),
+    }
+    Ok(true)
 }
 
 impl<S: Send + Sync> FromRequestParts<S> for GradeQuery {
@@ -179,12 +228,15 @@ impl<S: Send + Sync> FromRequestParts<S> for GradeQuery {
                     })?;
                     once(&mut q.format, k, h)?;
                 }
+                k if scoring_param(&mut q, k, &v)? => {}
                 other => {
                     return Err(ApiError::BadRequest(format!(
                         "unknown query parameter `{other}`: this route takes `colour_abs`, \
                          `max_fail_share`, `lambda_rel`, `normal_degrees`, `edge_forgiving`, \
-                         `worst`, `inline_diff`, `flip`, `format`, `report`, `max_score` and \
-                         `output`"
+                         `worst`, `inline_diff`, `flip`, `format`, `report`, `max_score`, \
+                         `visibility`, `stdout_visibility`, `scoring`, `zero_share`, \
+                         `error_k`, `weight_hit_miss`, `weight_object`, `weight_lambda`, \
+                         `weight_normal` and `output`"
                     )));
                 }
             }
@@ -507,19 +559,30 @@ async fn grade(
     )
     .await
     .map_err(|_| deadline_exceeded(&app))?
-    .map_err(|e| ApiError::Internal(format!("the parsing task failed: {e}")))??;
+    .map_err(|e| ApiError::Internal(format!("the parsing task failed: {e}")))?;
+    let lms = lms_options(&query);
+    let prepared = match prepared {
+        Err(ApiError::InvalidSubmission(e)) if answer.is_lms() => {
+            return ungradable_answer(&e, answer, &lms);
+        }
+        other => other?,
+    };
+    let scoring = query.scoring.apply(Scoring::default());
+    scoring
+        .check(&prepared.tolerances)
+        .map_err(|e| ApiError::BadRequest(e.to_string()))?;
 
     let defaults = GradeOptions::default();
     let opts = GradeOptions {
         worst: query.worst.unwrap_or(defaults.worst),
         inline_diff: query.inline_diff.unwrap_or(defaults.inline_diff),
         flip: query.flip.unwrap_or(defaults.flip),
+        scoring,
         ..defaults
     };
-    let max_score = query.max_score.unwrap_or(1.0);
     let deadline_len = app.config.deadline();
     let (cost, metrics) = (CostLimit::new(&app.config), app.metrics.clone());
-    let (bytes, pass) = job::run(&app, &info, "grade", move |cancel| {
+    let (bytes, verdict) = job::run(&app, &info, "grade", move |cancel| {
         let Prepared {
             scene,
             submission,
@@ -536,26 +599,61 @@ async fn grade(
             cancel: cancel.clone(),
             ..opts
         };
-        let report = grade::grade(&r, submission, &tolerances, &opts).map_err(|e| {
-            cost.overrun(&r, work, cancel, scene_at)
-                .unwrap_or_else(|| ApiError::grading(e, deadline_len))
-        })?;
-        let bytes = write_report(&report, answer, max_score).map_err(write_failed)?;
-        Ok::<_, ApiError>((bytes, report.pass))
+        let report = match grade::grade(&r, submission, &tolerances, &opts) {
+            Ok(report) => report,
+            Err(e) if answer.is_lms() && e.is_submissions_fault() => {
+                let bytes = write_ungradable(&e.to_string(), answer, &lms).map_err(write_failed)?;
+                return Ok((bytes.unwrap_or_default(), "ungradable"));
+            }
+            Err(e) => {
+                return Err(cost
+                    .overrun(&r, work, cancel, scene_at)
+                    .unwrap_or_else(|| ApiError::grading(e, deadline_len)));
+            }
+        };
+        let bytes = write_report(&report, answer, &lms).map_err(write_failed)?;
+        Ok::<_, ApiError>((bytes, if report.pass { "pass" } else { "fail" }))
     })
     .await??;
-    let verdict = HeaderValue::from_static(if pass { "pass" } else { "fail" });
-    Ok((
+    Ok(graded_response(answer, bytes, verdict))
+}
+
+/// Gradescope's points and visibilities from the query.
+fn lms_options(q: &GradeQuery) -> LmsOptions {
+    let d = LmsOptions::default();
+    LmsOptions {
+        max_score: q.max_score.unwrap_or(d.max_score),
+        visibility: q.visibility.unwrap_or(d.visibility),
+        stdout_visibility: q.stdout_visibility.unwrap_or(d.stdout_visibility),
+    }
+}
+
+/// A graded answer: `answer`'s media type and the verdict header.
+fn graded_response(answer: ReportForm, bytes: Vec<u8>, verdict: &'static str) -> Response {
+    (
         [
             (
                 header::CONTENT_TYPE,
                 HeaderValue::from_static(answer.content_type()),
             ),
-            (X_RAYTILE_VERDICT, verdict),
+            (X_RAYTILE_VERDICT, HeaderValue::from_static(verdict)),
         ],
         bytes,
     )
-        .into_response())
+        .into_response()
+}
+
+/// A grader form's results file for a submission that cannot be graded (200, verdict
+/// `ungradable`), as `raytile grade` writes it.
+fn ungradable_answer(
+    e: &GradeError,
+    answer: ReportForm,
+    lms: &LmsOptions,
+) -> Result<Response, ApiError> {
+    let bytes = write_ungradable(&e.to_string(), answer, lms)
+        .map_err(write_failed)?
+        .unwrap_or_default();
+    Ok(graded_response(answer, bytes, "ungradable"))
 }
 
 #[cfg(test)]

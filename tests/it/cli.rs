@@ -18,6 +18,30 @@ fn validate_accepts_every_shipped_scene() {
     }
 }
 
+/// `validate` and `trace` name the sample grid in the same words, the lecture's.
+#[test]
+fn validate_and_trace_name_the_sample_grid_alike() {
+    let dir = tempfile::tempdir().unwrap();
+    for (s, want) in [(1, "1 sample per pixel"), (2, "2 × 2 samples per pixel")] {
+        let bytes = std::fs::read(scene("lecture.json")).unwrap();
+        let mut doc: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
+        doc["image"]["samples"] = s.into();
+        let p = scene_file(&dir, &format!("lecture-{s}.json"), &doc);
+        let out = run(&["validate", p.to_str().unwrap()]);
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            text.contains(&format!("5 × 5 pixels, {want}, 1 objects")),
+            "{text}"
+        );
+        let out = run(&["trace", p.to_str().unwrap(), "--pixel", "2,2"]);
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            text.contains(&format!("f = 1, {want}, max_depth")),
+            "{text}"
+        );
+    }
+}
+
 /// `hits -o x.csv` writes the table the grader reads: the same records as `-o x.json`,
 /// row-major, and graded against its own scene it passes with no failing pixel.
 #[test]

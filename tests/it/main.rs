@@ -10,6 +10,8 @@
 //! - `geometry`: shapes under transforms against hand-computed answers;
 //! - `imports`: no two modules import each other, the server never the command line;
 //! - `lecture`: the lecture's worked example;
+//! - `lms`: Gradescope's and PrairieLearn's results files (ungradable submissions,
+//!   folders, visibility) and the scoring modes, on the command line and over HTTP;
 //! - `properties`: BVH against brute force, invariance, determinism, regions;
 //! - `schema`: the JSON Schema and the parser agree;
 //! - `openapi`: `api/openapi.yaml` and the server agree;
@@ -29,6 +31,7 @@ mod geometry;
 mod grade;
 mod imports;
 mod lecture;
+mod lms;
 mod openapi;
 mod properties;
 mod schema;

@@ -376,7 +376,8 @@ async fn the_difference_image_and_the_report_forms() {
         (Some(0.0), Some(10.0))
     );
     assert_eq!(g["tests"][0]["status"], "failed");
-    assert!(g["output"].as_str().unwrap().starts_with("FAIL"));
+    // Markdown, the text report in a code block.
+    assert!(g["output"].as_str().unwrap().starts_with("```text\nFAIL"));
 
     // PrairieLearn: score 0–1, the difference image inline.
     let p: Value = grade(

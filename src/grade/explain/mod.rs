@@ -34,9 +34,9 @@ use crate::geometry::ray::PRIMARY_LAMBDA_MIN;
 use crate::render::shade::Shader;
 use crate::render::{RayCount, Renderer, quantise};
 pub use model::{
-    Blocker, Explanation, FaceCheck, FinalColour, HitInfo, ImageInfo, LightInfo, MaterialInfo,
-    ObjectTest, PrimaryRay, Quadratic, Ray4, RayNode, Role, Root, Sample, Secondary, Shading,
-    SpentAt, TriangleCheck, Truncation,
+    Blocker, DirectionTerms, Explanation, FaceCheck, FinalColour, HitInfo, ImageInfo, LightInfo,
+    MaterialInfo, ObjectTest, PrimaryRay, Quadratic, Ray4, RayNode, Role, Root, Sample, Secondary,
+    Shading, SpentAt, TriangleCheck, Truncation,
 };
 pub use recorder::part_label;
 use recorder::{Explainer, Recorder};
@@ -162,8 +162,9 @@ pub fn explain(r: &Renderer, u: u32, v: u32, opts: &ExplainOptions) -> Explanati
     let mut samples = Vec::new();
     if s > 1 {
         notes.push(format!(
-            "The image takes {s} × {s} samples per pixel: the ray tree is the pixel-centre \
+            "The image takes {}: the ray tree is the pixel-centre \
              ray's (as hit data uses); the final colour is the mean of the {} samples, as rendered.",
+            crate::scene::sample_grid(s),
             s * s
         ));
         // The same points, in the same order, as `Renderer::pixel_colour` averages them.
@@ -249,6 +250,7 @@ pub fn explain(r: &Renderer, u: u32, v: u32, opts: &ExplainOptions) -> Explanati
             camera: (&camera_ray).into(),
             world_from_camera: scene.camera.world_from_camera.forward_rows(),
             world: (&world_ray).into(),
+            direction_terms: DirectionTerms::new(x, y, scene.width, scene.height),
         },
         candidates: mode,
         colour: FinalColour {

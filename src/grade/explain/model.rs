@@ -92,6 +92,32 @@ pub struct PrimaryRay {
     pub world_from_camera: [[f64; 4]; 4],
     /// The same ray in world space (`λ` unchanged).
     pub world: Ray4,
+    /// The terms of the camera-space direction, as the lecture works it out.
+    pub direction_terms: DirectionTerms,
+}
+
+/// The terms of `d = [−1 + x·2/w, −h/w + y·2/w, f, 0]`, each computed as the camera
+/// computes it, so that `−1 + x_term` and `−aspect + y_term` are `d`'s components.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct DirectionTerms {
+    /// `x · 2 / w`.
+    pub x_term: f64,
+    /// `h / w`.
+    pub aspect: f64,
+    /// `y · 2 / w`.
+    pub y_term: f64,
+}
+
+impl DirectionTerms {
+    /// The terms for the image point `(x, y)` of a `w × h` image.
+    pub fn new(x: f64, y: f64, width: u32, height: u32) -> DirectionTerms {
+        let (w, h) = (f64::from(width), f64::from(height));
+        DirectionTerms {
+            x_term: x * 2.0 / w,
+            aspect: h / w,
+            y_term: y * 2.0 / w,
+        }
+    }
 }
 
 /// How a ray of the tree came about.

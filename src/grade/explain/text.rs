@@ -88,23 +88,17 @@ pub fn to_text(e: &Explanation) -> String {
     let i = &e.image;
     let _ = writeln!(
         o,
-        "Pixel ({}, {}) of a {} × {} image (focal length f = {}, {} × {} samples per pixel, max_depth {})",
+        "Pixel ({}, {}) of a {} × {} image (focal length f = {}, {}, max_depth {})",
         e.u,
         e.v,
         i.width,
         i.height,
         num(i.focal_length),
-        i.samples,
-        i.samples,
+        crate::scene::sample_grid(i.samples),
         i.max_depth
     );
+    direction_text(e, &mut o);
     let p = &e.primary;
-    let _ = writeln!(
-        o,
-        "\nPrimary ray through the image point ({}, {}):\n  d = [-1 + x·2/w, -h/w + y·2/w, f, 0]",
-        num(p.image_point[0]),
-        num(p.image_point[1])
-    );
     let _ = writeln!(o, "  camera space: p(λ) = {}", ray_text(&p.camera));
     if p.camera == p.world {
         let _ = writeln!(
@@ -173,6 +167,75 @@ pub fn to_text(e: &Explanation) -> String {
         }
     }
     o
+}
+
+/// The primary direction `d` step by step, as the lecture works it out: the formula, the
+/// numbers put in, each term ([`super::model::DirectionTerms`]), and the direction the
+/// tracer uses.
+fn direction_text(e: &Explanation, o: &mut String) {
+    let p = &e.primary;
+    let t = &p.direction_terms;
+    let (x, y) = (p.image_point[0], p.image_point[1]);
+    let (w, h, f) = (
+        f64::from(e.image.width),
+        f64::from(e.image.height),
+        e.image.focal_length,
+    );
+    let _ = writeln!(
+        o,
+        "\nPrimary ray through the image point (x, y) = ({}, {}) (pixel ({}, {}) + ½):",
+        num(x),
+        num(y),
+        e.u,
+        e.v
+    );
+    let _ = writeln!(o, "  d = [-1 + x·2/w, -h/w + y·2/w, f, 0]");
+    let _ = writeln!(
+        o,
+        "    = [-1 + {x}·2/{w}, -{h}/{w} + {y}·2/{w}, {f}, 0]",
+        x = num(x),
+        y = num(y),
+        w = num(w),
+        h = num(h),
+        f = num(f)
+    );
+    let _ = writeln!(
+        o,
+        "    = [-1 + {}, -{} + {}, {}, 0]",
+        num(t.x_term),
+        num(t.aspect),
+        num(t.y_term),
+        num(f)
+    );
+    let _ = writeln!(o, "    = {}", vec_text(&p.camera.direction));
+}
+
+/// For a tangent hit (the ray grazes the surface, `n · d = 0`), why the shading normal
+/// is the negated one: the rule that turns `n` to face the ray counts the tie as "not
+/// from the outside".
+fn tangent_text(o: &mut String, ind: &str, n: &RayNode, h: &super::model::HitInfo) {
+    let d = &n.ray.direction;
+    let dot: f64 = (0..3).map(|k| h.normal[k] * d[k]).sum();
+    let scale = (0..3).map(|k| d[k] * d[k]).sum::<f64>().sqrt();
+    if h.front || dot.abs() > 1e-12 * scale.max(f64::MIN_POSITIVE) {
+        return;
+    }
+    let turned = match &n.shading {
+        Some(s) => vec_text(&s.n),
+        None => vec_text(&[-h.normal[0], -h.normal[1], -h.normal[2]]),
+    };
+    let _ = writeln!(
+        o,
+        "{ind}    a tangent: the ray grazes the surface, n · d = 0, so it arrives from neither side."
+    );
+    let _ = writeln!(
+        o,
+        "{ind}    Shading turns n to face the ray whenever n · d ≥ 0, and the tie counts: the"
+    );
+    let _ = writeln!(
+        o,
+        "{ind}    shading normal is −n = {turned}, and secondary rays leave on that side."
+    );
 }
 
 /// Writes ray number `*counter` and, numbering on, the rays below it.
@@ -260,6 +323,7 @@ fn node_text(o: &mut String, n: &RayNode, ind: &str, counter: &mut usize, cut: &
             "the ray does not arrive from its outside: n · d ≥ 0"
         }
     );
+    tangent_text(o, ind, n, h);
     let Some(s) = &n.shading else { return };
     let m = &s.material;
     let _ = writeln!(
@@ -483,6 +547,53 @@ mod tests {
         ] {
             assert!(text.contains(want), "missing {want:?} in\n{text}");
         }
+    }
+
+    #[test]
+    fn the_primary_direction_is_worked_out_step_by_step() {
+        let r = renderer("lecture.json");
+        let text = to_text(&explain(&r, 2, 2, &ExplainOptions::default()));
+        let want = "Primary ray through the image point (x, y) = (2.5, 2.5) (pixel (2, 2) + ½):
+  d = [-1 + x·2/w, -h/w + y·2/w, f, 0]
+    = [-1 + 2.5·2/5, -5/5 + 2.5·2/5, 1, 0]
+    = [-1 + 1, -1 + 1, 1, 0]
+    = [0, 0, 1, 0]
+";
+        assert!(text.contains(want), "missing {want:?} in\n{text}");
+        // A corner pixel: the terms are not whole numbers. The JSON carries them too, and
+        // they add up to the direction the tracer uses.
+        let e = explain(&r, 0, 4, &ExplainOptions::default());
+        let json = serde_json::to_value(&e).unwrap();
+        assert_eq!(json["primary"]["direction_terms"]["x_term"], 0.2);
+        assert_eq!(json["primary"]["direction_terms"]["aspect"], 1.0);
+        let t = e.primary.direction_terms;
+        let d = e.primary.camera.direction;
+        assert_eq!((-1.0 + t.x_term, -t.aspect + t.y_term), (d[0], d[1]));
+        let text = to_text(&e);
+        assert!(
+            text.contains("    = [-1 + 0.5·2/5, -5/5 + 4.5·2/5, 1, 0]\n    = [-1 + 0.2, -1 + 1.8, 1, 0]\n    = [-0.8, 0.8, 1, 0]\n"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn a_tangent_hit_says_why_the_shading_normal_is_turned() {
+        let r = renderer("lecture.json");
+        let text = to_text(&explain(&r, 2, 2, &ExplainOptions::default()));
+        assert!(
+            text.contains("a tangent: the ray grazes the surface, n · d = 0"),
+            "{text}"
+        );
+        assert!(
+            text.contains("the tie counts: the\n    shading normal is −n = [1, 0, 0]"),
+            "{text}"
+        );
+        assert!(text.contains("1 sample per pixel,"), "{text}");
+        // A hit that is not a tangent says nothing of the kind.
+        let showcase = renderer("showcase.json");
+        let text = to_text(&explain(&showcase, 512, 400, &ExplainOptions::default()));
+        assert!(!text.contains("a tangent: the ray grazes"), "{text}");
+        assert!(text.contains("2 × 2 samples per pixel"), "{text}");
     }
 
     #[test]
