@@ -5,9 +5,18 @@
 //! descriptors for ever and lock everyone else out. Here every connection is served by
 //! hyper's HTTP/1 server under three rules, each a setting of `raytile serve`:
 //!
-//! - **`--max-connections`**: connections open at once. Past it a new connection is
-//!   answered at once with a 503 problem document (`too-many-connections`,
-//!   `Retry-After`) and closed, without reading it, so a proxy retries elsewhere.
+//! - **`--max-connections`**: connections open at once, lowered at start to what the
+//!   process's file-descriptor limit allows (the soft limit is first raised to the hard
+//!   one; [`RESERVED_DESCRIPTORS`] stay free for everything else). At the cap, a new
+//!   connection takes the place of the longest-waiting one that has no request in
+//!   flight (silent since accept, dripping its head, or kept alive and idle): that one
+//!   is closed, as HTTP allows for a connection between requests. The newcomer must
+//!   send its first byte within half a second to do so (a silent one is no better than
+//!   those it would displace), and only 16 may try at once. Otherwise, or when every
+//!   connection has a request in flight, the new one is answered with a 503
+//!   problem document (`too-many-connections`, `Retry-After`) and closed, without
+//!   reading it, so a proxy retries elsewhere. So sockets that send nothing can never
+//!   lock out a client that does.
 //! - **`--header-timeout-seconds`**: once a request's first byte has arrived, its head
 //!   (request line and headers) must be complete within this; a new connection must
 //!   send its first byte within it too. A client that drips its headers is cut.
@@ -18,9 +27,11 @@
 //! A request in flight (its body being read, or its response streaming) is never cut
 //! by these: the request deadline and the stall rule of [`super::stream`] govern it.
 
+use std::collections::HashMap;
 use std::future::Future;
 use std::io;
 use std::pin::Pin;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 use std::time::Duration;
@@ -48,7 +59,13 @@ pub async fn serve_connections(
     limits: ConnectionLimits,
     drain: impl Future<Output = ()>,
 ) {
+    let limits = ConnectionLimits {
+        max_connections: descriptor_cap(limits.max_connections),
+        ..limits
+    };
     let slots = Arc::new(Semaphore::new(limits.max_connections));
+    let open = Arc::new(Registry::default());
+    let pending = Arc::new(AtomicUsize::new(0));
     let (closing_tx, closing_rx) = watch::channel(false);
     let mut drain = std::pin::pin!(drain);
     loop {
@@ -71,22 +88,182 @@ pub async fn serve_connections(
         if let Err(e) = tcp.set_nodelay(true) {
             tracing::debug!(error = %e, "cannot set TCP_NODELAY");
         }
-        let Ok(permit) = slots.clone().try_acquire_owned() else {
+        let app = app.clone();
+        let closing = closing_rx.clone();
+        let open = open.clone();
+        if let Ok(permit) = slots.clone().try_acquire_owned() {
+            tokio::spawn(async move {
+                serve_one(tcp, app, limits, closing, &open).await;
+                drop(permit);
+            });
+            continue;
+        }
+        // A newcomer on probation holds a descriptor beyond the cap, so only a few may
+        // wait at once (within the reserve); the others are refused at once.
+        let Some(waiting) = Waiting::enter(&pending) else {
             tracing::warn!(%peer, limit = limits.max_connections, "too many connections: refused");
             refuse(tcp, limits.max_connections);
             continue;
         };
-        let app = app.clone();
-        let closing = closing_rx.clone();
+        let slots = slots.clone();
         tokio::spawn(async move {
-            serve_one(tcp, app, limits, closing).await;
-            drop(permit);
+            // Only a newcomer that sends its request promptly displaces a connection;
+            // a silent one, like those filling the cap, is refused.
+            let spoke = tokio::time::timeout(PROBATION, tcp.readable()).await;
+            let slot = match spoke {
+                Ok(Ok(())) if open.evict_one() => {
+                    // The evicted connection gives its slot back as soon as its task
+                    // sees the request.
+                    tokio::time::timeout(EVICTION_WAIT, slots.acquire_owned())
+                        .await
+                        .ok()
+                        .and_then(Result::ok)
+                }
+                _ => None,
+            };
+            drop(waiting);
+            match slot {
+                Some(permit) => {
+                    serve_one(tcp, app, limits, closing, &open).await;
+                    drop(permit);
+                }
+                None => {
+                    tracing::warn!(%peer, limit = limits.max_connections, "too many connections: refused");
+                    refuse(tcp, limits.max_connections);
+                }
+            }
         });
     }
     drop(listener);
     let _ = closing_tx.send(true);
     // Every permit back means every connection has closed.
     let _ = slots.acquire_many(limits.max_connections as u32).await;
+}
+
+/// File descriptors kept free of connections: the listener, the runtime's poller, log
+/// and data files, the database's connections.
+pub const RESERVED_DESCRIPTORS: u64 = 64;
+
+/// How soon a newcomer at the cap must send its first byte to displace a connection.
+const PROBATION: Duration = Duration::from_millis(500);
+
+/// Longest a connection that displaced an idle one waits for its slot.
+const EVICTION_WAIT: Duration = Duration::from_secs(1);
+
+/// Newcomers at the cap that may be on probation, or waiting for the slot of a
+/// connection closed for them, at once.
+const MOST_WAITING: usize = 16;
+
+/// One newcomer waiting for an evicted connection's slot; counted until dropped.
+struct Waiting(Arc<AtomicUsize>);
+
+impl Waiting {
+    /// A place among the [`MOST_WAITING`], if one is free.
+    fn enter(count: &Arc<AtomicUsize>) -> Option<Waiting> {
+        count
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| {
+                (n < MOST_WAITING).then_some(n + 1)
+            })
+            .ok()
+            .map(|_| Waiting(count.clone()))
+    }
+}
+
+impl Drop for Waiting {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// The connection cap the descriptor limit allows: `wanted`, or fewer when the process
+/// may not open that many files. The soft limit is raised to the hard one first, as
+/// servers do; past the descriptors, `accept` would fail and every client would wait.
+fn descriptor_cap(wanted: usize) -> usize {
+    use rustix::process::{Resource, Rlimit, getrlimit, setrlimit};
+    let limit = getrlimit(Resource::Nofile);
+    let raised = match (limit.current, limit.maximum) {
+        (Some(soft), hard) if hard.is_none_or(|h| h > soft) => {
+            let target = Rlimit {
+                current: hard,
+                maximum: hard,
+            };
+            match setrlimit(Resource::Nofile, target) {
+                Ok(()) => hard,
+                Err(e) => {
+                    tracing::debug!(error = %e, "cannot raise the descriptor limit");
+                    Some(soft)
+                }
+            }
+        }
+        (soft, _) => soft,
+    };
+    let Some(descriptors) = raised else {
+        return wanted;
+    };
+    let allowed = descriptors.saturating_sub(RESERVED_DESCRIPTORS).max(1);
+    let allowed = usize::try_from(allowed).unwrap_or(usize::MAX);
+    if allowed < wanted {
+        tracing::warn!(
+            descriptors,
+            wanted,
+            allowed,
+            "the file-descriptor limit lowers --max-connections"
+        );
+        return allowed;
+    }
+    wanted
+}
+
+/// The open connections, so that one with no request in flight can be closed to make
+/// room for a new one at the cap.
+#[derive(Default)]
+struct Registry {
+    open: Mutex<(u64, HashMap<u64, Arc<Activity>>)>,
+}
+
+impl Registry {
+    fn add(&self, a: Arc<Activity>) -> u64 {
+        let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
+        open.0 += 1;
+        let id = open.0;
+        open.1.insert(id, a);
+        id
+    }
+
+    fn remove(&self, id: u64) {
+        let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
+        open.1.remove(&id);
+    }
+
+    /// Asks the connection that has waited longest without a request in flight to
+    /// close: one that has never finished a head before one kept alive between
+    /// requests. False when every connection is busy.
+    fn evict_one(&self) -> bool {
+        let open = self.open.lock().unwrap_or_else(|e| e.into_inner());
+        let victim = open
+            .1
+            .values()
+            .filter(|a| !a.is_evicted())
+            .filter_map(|a| a.eviction_rank().map(|rank| (rank, a)))
+            .min_by_key(|(rank, _)| *rank)
+            .map(|(_, a)| a.clone());
+        match victim {
+            Some(a) => {
+                a.evict();
+                true
+            }
+            None => false,
+        }
+    }
+}
+
+/// Keeps a connection in the [`Registry`] while it is served.
+struct Registered<'a>(&'a Registry, u64);
+
+impl Drop for Registered<'_> {
+    fn drop(&mut self) {
+        self.0.remove(self.1);
+    }
 }
 
 /// Answers a connection over the cap with a 503 and closes it. One non-blocking write:
@@ -118,8 +295,10 @@ async fn serve_one(
     app: Router,
     limits: ConnectionLimits,
     mut closing: watch::Receiver<bool>,
+    open: &Registry,
 ) {
     let watch = Arc::new(Activity::new());
+    let _registered = Registered(open, open.add(watch.clone()));
     let io = TokioIo::new(Watched {
         inner: tcp,
         watch: watch.clone(),
@@ -171,7 +350,12 @@ async fn serve_one(
                     return;
                 }
             }
-            _ = watch.changed.notified() => {}
+            _ = watch.changed.notified() => {
+                if watch.is_evicted() && watch.eviction_rank().is_some() {
+                    tracing::debug!("connection closed to make room for a new one");
+                    return;
+                }
+            }
         }
     }
 }
@@ -199,8 +383,10 @@ enum Phase {
 /// A connection's phase, updated by its socket and its requests.
 struct Activity {
     phase: Mutex<Phase>,
-    /// Woken when the phase changes, so the deadline is recomputed.
+    /// Woken when the phase changes, so the deadline is recomputed, or on eviction.
     changed: Notify,
+    /// Asked to close to make room for a new connection.
+    evicted: AtomicBool,
 }
 
 impl Activity {
@@ -208,6 +394,28 @@ impl Activity {
         Activity {
             phase: Mutex::new(Phase::New(Instant::now())),
             changed: Notify::new(),
+            evicted: AtomicBool::new(false),
+        }
+    }
+
+    /// Asks the connection to close (it does once no request is in flight).
+    fn evict(&self) {
+        self.evicted.store(true, Ordering::SeqCst);
+        self.changed.notify_one();
+    }
+
+    fn is_evicted(&self) -> bool {
+        self.evicted.load(Ordering::SeqCst)
+    }
+
+    /// The order in which connections without a request in flight make room: first
+    /// those that never completed a head (silent or dripping), then idle kept-alive
+    /// ones, longest waiting first. None for a connection with a request in flight.
+    fn eviction_rank(&self) -> Option<(u8, Instant)> {
+        match self.phase() {
+            Phase::New(t) | Phase::Head(t) => Some((0, t)),
+            Phase::Idle(t) => Some((1, t)),
+            Phase::Busy(_) => None,
         }
     }
 
@@ -385,6 +593,41 @@ mod tests {
         assert!(!a.expired(limits()));
         tokio::time::advance(Duration::from_secs(61)).await;
         assert!(a.expired(limits()));
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn eviction_takes_the_longest_silent_connection_first_and_never_a_busy_one() {
+        let open = Registry::default();
+        let idle = Arc::new(Activity::new());
+        idle.request_started();
+        idle.request_ended();
+        tokio::time::advance(Duration::from_secs(5)).await;
+        let silent = Arc::new(Activity::new());
+        let busy = Arc::new(Activity::new());
+        busy.request_started();
+        for a in [&idle, &silent, &busy] {
+            open.add(a.clone());
+        }
+        // The silent one goes first although the idle one has waited longer.
+        assert!(open.evict_one());
+        assert!(silent.is_evicted() && !idle.is_evicted());
+        assert!(open.evict_one());
+        assert!(idle.is_evicted());
+        assert!(
+            !open.evict_one(),
+            "a connection with a request in flight is never evicted"
+        );
+        assert!(!busy.is_evicted());
+    }
+
+    #[test]
+    fn the_descriptor_limit_caps_connections_but_never_raises_the_setting() {
+        assert_eq!(descriptor_cap(3), 3);
+        let limit = rustix::process::getrlimit(rustix::process::Resource::Nofile);
+        if let Some(soft) = limit.current {
+            let most = usize::try_from(soft.saturating_sub(RESERVED_DESCRIPTORS)).unwrap();
+            assert!(descriptor_cap(usize::MAX) <= most.max(1));
+        }
     }
 
     #[test]

@@ -1247,33 +1247,110 @@ async fn a_kept_alive_connection_waits_the_idle_timeout_then_closes() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn past_the_connection_cap_a_client_gets_503_and_idle_sockets_do_not_lock_others_out() {
-    let app = TestApp::with(connection_config(1.0, 30.0, 4)).await;
+async fn at_the_connection_cap_silent_sockets_make_room_and_only_busy_ones_get_503() {
+    let app = TestApp::with(connection_config(30.0, 30.0, 4)).await;
     let addr = app.addr;
     tokio::task::spawn_blocking(move || {
-        let idle: Vec<TcpStream> = (0..4).map(|_| TcpStream::connect(addr).unwrap()).collect();
-        // The fifth is refused with a problem document, without being read.
+        // Four sockets that send nothing fill the cap; a client that asks still gets in
+        // (long before the 30 s header timeout would free one), taking the place of the
+        // longest-silent socket, which is closed.
+        let mut silent: Vec<TcpStream> = (0..4).map(|_| TcpStream::connect(addr).unwrap()).collect();
+        std::thread::sleep(Duration::from_millis(100));
         let start = Instant::now();
-        let answer = loop {
-            let mut s = TcpStream::connect(addr).unwrap();
-            let (got, _) = read_until_closed(&mut s, Duration::from_secs(2));
-            let text = String::from_utf8_lossy(&got).into_owned();
-            if text.starts_with("HTTP/1.1 503") || start.elapsed() > Duration::from_secs(5) {
-                break text;
-            }
-        };
-        assert!(answer.starts_with("HTTP/1.1 503"), "{answer}");
-        assert!(answer.contains("retry-after: 1"), "{answer}");
-        assert!(
-            answer.contains("/problems/too-many-connections"),
-            "{answer}"
-        );
-        // The silent sockets are cut after the header timeout, and then others get in.
-        std::thread::sleep(Duration::from_millis(1500));
         let mut s = TcpStream::connect(addr).unwrap();
         assert!(healthz_on(&mut s).starts_with("HTTP/1.1 200"));
-        drop(idle);
+        assert!(start.elapsed() < Duration::from_secs(5));
+        let closed = silent
+            .iter_mut()
+            .map(|q| read_until_closed(q, Duration::from_millis(500)).1)
+            .filter(|&closed| closed)
+            .count();
+        assert_eq!(closed, 1, "one silent socket is closed to make room");
+        drop(s);
+        drop(silent);
+        std::thread::sleep(Duration::from_millis(200));
+
+        // Four connections each with a request in flight (a body announced, not sent)
+        // are never closed for a newcomer: it gets the 503 problem document.
+        let mut busy = Vec::new();
+        for _ in 0..4 {
+            let mut b = TcpStream::connect(addr).unwrap();
+            b.write_all(
+                b"POST /v1/validate HTTP/1.1\r\nhost: t\r\ncontent-type: application/json\r\ncontent-length: 100\r\n\r\n{",
+            )
+            .unwrap();
+            busy.push(b);
+        }
+        std::thread::sleep(Duration::from_millis(300));
+        let mut s = TcpStream::connect(addr).unwrap();
+        let (got, closed) = read_until_closed(&mut s, Duration::from_secs(5));
+        let answer = String::from_utf8_lossy(&got).into_owned();
+        assert!(closed);
+        assert!(answer.starts_with("HTTP/1.1 503"), "{answer}");
+        assert!(answer.contains("retry-after: 1"), "{answer}");
+        assert!(answer.contains("/problems/too-many-connections"), "{answer}");
+        // The busy ones are still served: finishing a body gets its answer.
+        let body = format!("{{\"pad\": \"{}\"}}", "x".repeat(100 - 12));
+        assert_eq!(body.len(), 99);
+        busy[0].write_all(body.as_bytes()).unwrap();
+        let (got, _) = read_until_closed(&mut busy[0], Duration::from_secs(2));
+        assert!(String::from_utf8_lossy(&got).starts_with("HTTP/1.1 "), "no answer");
     })
     .await
     .unwrap();
+}
+
+#[test]
+fn under_a_low_descriptor_limit_idle_sockets_do_not_delay_healthz() {
+    // `ulimit -n 128` for the server alone: it lowers its cap to fit, so 200 silent
+    // sockets are either held or refused at once, and /healthz still answers at once.
+    let bin = std::path::Path::new(env!("CARGO_BIN_EXE_raytile"));
+    let mut child = std::process::Command::new("sh")
+        .arg("-c")
+        .arg(format!(
+            "ulimit -n 128 && exec '{}' serve --addr 127.0.0.1:0 --header-timeout-seconds 30",
+            bin.display()
+        ))
+        .env("RAYTILE_LOG_FORMAT", "text")
+        .env("RUST_LOG", "info")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("sh starts the server");
+    let stdout = child.stdout.take().unwrap();
+    let (tx, lines) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufRead::lines(std::io::BufReader::new(stdout)).map_while(Result::ok) {
+            let _ = tx.send(line);
+        }
+    });
+    let mut addr = None;
+    let mut lowered = false;
+    while addr.is_none() || !lowered {
+        let line = lines
+            .recv_timeout(Duration::from_secs(30))
+            .expect("the server logs its address and its lowered cap");
+        lowered |= line.contains("lowers --max-connections");
+        if let Some(i) = line.find("listening on http://") {
+            addr = line[i + "listening on http://".len()..]
+                .split_whitespace()
+                .next()
+                .map(str::to_owned);
+        }
+    }
+    let addr = addr.unwrap();
+    let silent: Vec<TcpStream> = (0..200)
+        .filter_map(|_| TcpStream::connect(&addr).ok())
+        .collect();
+    // Past the cap, silent newcomers are refused once their half-second probation ends.
+    std::thread::sleep(Duration::from_millis(1500));
+    let start = Instant::now();
+    let mut s = TcpStream::connect(&addr).unwrap();
+    let answer = healthz_on(&mut s);
+    let took = start.elapsed();
+    let _ = child.kill();
+    let _ = child.wait();
+    drop(silent);
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    assert!(took < Duration::from_secs(2), "/healthz took {took:?}");
 }
