@@ -3,18 +3,27 @@
 //!
 //! The order is the point: every failure is decided before the first byte
 //! (extract and validate, negotiate, admit, estimate the cost), because once the status
-//! line is out it cannot change. Then the job goes to the rayon pool with its render
+//! line is out it cannot change. Then the job goes to the pool's queue with its render
 //! slot; there it builds the acceleration structure and runs the cost pilot
 //! ([`CostLimit::check`]), whose verdict the handler awaits: a scene past `--max-rays`
 //! is refused with 422, any other returns with a body fed by [`super::stream`].
 //!
-//! After the first byte, four things can cut the stream: the client leaving (the
-//! channel closes; tracing stops at the next tile), the deadline (a tokio timer cancels
-//! the render), the end of the shutdown grace period, and the render's ray budget (its
-//! cancel token goes up once it has traced half as much again as `--max-rays`; its
-//! outcome is `over_budget`). A cut stream ends with a body
-//! error, so hyper aborts the transfer and the client cannot mistake a partial image for
-//! a whole one.
+//! The tiles are then traced a step at a time on the [`Scheduler`] (one tile a step, as
+//! many lanes as the pool has threads), so the tiles of every admitted render
+//! interleave. Before each tile a lane checks whether the client is behind
+//! ([`BodyWriter::is_backed_up`]); if so the render parks once its last lane stops: it
+//! holds no thread, gives back its render slot, and waits on the runtime for its client
+//! ([`BodyWriter::room`]); when the client has read it takes a slot again
+//! ([`super::admission::Admission::readmit`]) and its lanes resume. A client that takes
+//! nothing for `--stall-seconds` stops it for good (outcome `cancelled`).
+//!
+//! After the first byte, five things can cut the stream: the client leaving (the body
+//! is dropped; tracing stops at the next tile), the client taking nothing for
+//! `--stall-seconds`, the deadline (a tokio timer cancels the render), the end of the
+//! shutdown grace period, and the render's ray budget (its cancel token goes up once it
+//! has traced half as much again as `--max-rays`; its outcome is `over_budget`). A cut
+//! stream ends with a body error, so hyper aborts the transfer and the client cannot
+//! mistake a partial image for a whole one.
 //!
 //! Headers: `X-Raytile-Width` and `X-Raytile-Height` (the size of this answer's image),
 //! `X-Raytile-Region` (`x,y,w,h` in the full frame), and `Server-Timing` with `parse`
