@@ -419,11 +419,6 @@ impl Scheduler {
             None => {}
         }
     }
-
-    /// Runs `f` on the pool, blocking the caller (which must not be a worker of it).
-    pub fn install<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
-        self.pool.install(f)
-    }
 }
 
 #[cfg(test)]
