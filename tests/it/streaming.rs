@@ -12,7 +12,9 @@ use raytile::config::ServeArgs;
 use serde_json::Value;
 
 use crate::support::{raytile, scene_file};
-use crate::support_server::{TestApp, config, resized, shipped, spawn_binary, sphere_grid};
+use crate::support_server::{
+    TestApp, config, metric_value, resized, shipped, spawn_binary, sphere_grid,
+};
 
 /// The largest chunk the server may send.
 const CHUNK_BYTES: usize = 64 * 1024;
@@ -164,12 +166,24 @@ async fn ten_clients_that_never_read_do_not_delay_a_small_render() {
     let stalled: Vec<TcpStream> = (0..10)
         .map(|_| send(&addr, "/v1/hits", &large, "application/json"))
         .collect();
-    // Each traces until its client is behind, then parks and lets the next in.
-    app.wait_for_metric("raytile_renders_parked", Duration::from_secs(90), |v| {
-        v == 10.0
-    })
-    .await;
-    assert_eq!(app.metric("raytile_renders_in_flight").await, 0.0);
+    // Each traces until its client is behind, then parks and lets the next in: soon
+    // all ten are parked, none waits for a slot and none holds one.
+    let start = Instant::now();
+    loop {
+        let text = app.get("/metrics").await.text().await.unwrap();
+        let value = |name| metric_value(&text, name).unwrap_or(-1.0);
+        if value("raytile_renders_parked") == 10.0
+            && value("raytile_queue_depth") == 0.0
+            && value("raytile_renders_in_flight") == 0.0
+        {
+            break;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "the stalled renders still hold the slots:\n{text}"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
     let small = resized(shipped("sphere.json"), 64, 64);
     let expected = cli_output("render", &small, "s.png");
     let t = Instant::now();
