@@ -409,11 +409,10 @@ fn render_into(
         .enable_all()
         .build()
         .context("cannot start the async runtime")?;
-    let band_px = bands.first().map_or(1, |b| b.height);
     let ctx = Remote {
         client,
         scene: Bytes::from(scene),
-        sink: Arc::new(PngSink::new(file, region, band_px).context("cannot start the PNG")?),
+        sink: Arc::new(PngSink::new(file, region).context("cannot start the PNG")?),
     };
     let bar = progress_bar(bands.len() as u64);
     let summary = runtime.block_on(run_bands(

@@ -105,7 +105,7 @@ pub fn render(a: RenderArgs) -> anyhow::Result<ExitCode> {
         &a.opts,
         &a.output,
         |r, region, tile, sink_file, timing| {
-            let sink = PngSink::new(sink_file, region, tile)?;
+            let sink = PngSink::new(sink_file, region)?;
             let stats = trace_into(&ColourKernel(r), region, tile, &sink, timing)?;
             let t = Instant::now();
             sink.finish()?;
@@ -132,11 +132,10 @@ pub fn hits(a: HitsArgs) -> anyhow::Result<ExitCode> {
         &a.output,
         |r, region, tile, file, timing| {
             let sink = HitSink::new(
-                &r.scene,
+                r.scene.clone(),
                 format,
                 std::io::BufWriter::with_capacity(1 << 20, file),
                 region,
-                tile,
             )?;
             let stats = trace_into(&HitKernel(r), region, tile, &sink, timing)?;
             let t = Instant::now();
@@ -229,7 +228,7 @@ fn trace_into<K: Kernel, S: TileSink<K::Pixel>>(
     sink: &S,
     timing: &mut Timing,
 ) -> anyhow::Result<render::RenderStats> {
-    let tiles = region.tiles(tile).len() as u64;
+    let tiles = sink.tile_shape(region, tile).cut(region).len() as u64;
     let bar = if std::io::stderr().is_terminal() {
         let b = ProgressBar::new(tiles);
         b.set_style(
@@ -269,6 +268,10 @@ struct Observed<'a, S> {
 }
 
 impl<T, S: TileSink<T>> TileSink<T> for Observed<'_, S> {
+    fn tile_shape(&self, region: Rect, tile_px: u32) -> render::TileShape {
+        self.inner.tile_shape(region, tile_px)
+    }
+
     fn tile(&self, tile: Tile<T>) -> Result<(), SinkClosed> {
         let rays = self.rays.fetch_add(tile.rays, Ordering::Relaxed) + tile.rays;
         let t = Instant::now();

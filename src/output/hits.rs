@@ -1,16 +1,18 @@
 //! Hit data streamed while tiles trace, in any [`HitFormat`]: NDJSON a line per tile in
 //! the order tiles finish; JSON, NPY and CSV row by row, top to bottom, as soon as each
-//! row is complete. The bytes of each format are its file's in [`crate::format`]; this
-//! sink only decides when they are written.
+//! row (or, in a frame too wide for a band, each piece of a row) can leave. The bytes of
+//! each format are its file's in [`crate::format`]; this sink only decides when they
+//! are written, and writes them in pieces of at most [`PIECE_BYTES`] (a row of a wide
+//! frame is never built in one buffer).
 
 use std::io::{self, Write};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
-use super::rows::RowAssembler;
+use super::rows::{PIECE_BYTES, RowAssembler};
 use crate::format::npy::{NPY_RECORD_BYTES, npy_header, npy_record_bytes};
 use crate::format::{HitFormat, PixelHit, csv, json, ndjson};
 use crate::geometry::Surface;
-use crate::render::{Rect, SinkClosed, Tile, TileSink};
+use crate::render::{Rect, SinkClosed, Tile, TileShape, TileSink};
 use crate::scene::Scene;
 
 fn closed(e: impl std::fmt::Display) -> SinkClosed {
@@ -18,8 +20,8 @@ fn closed(e: impl std::fmt::Display) -> SinkClosed {
 }
 
 /// A [`TileSink`] writing hit data of `region` in one of the formats.
-pub struct HitSink<'s, W: Write + Send> {
-    scene: &'s Scene,
+pub struct HitSink<W: Write + Send> {
+    scene: Arc<Scene>,
     format: HitFormat,
     state: Mutex<HitState<W>>,
 }
@@ -34,16 +36,10 @@ struct HitState<W> {
     first: bool,
 }
 
-impl<'s, W: Write + Send> HitSink<'s, W> {
+impl<W: Write + Send> HitSink<W> {
     /// Writes the format's header (JSON's opening, NPY's dtype and shape, CSV's column
     /// names) at once.
-    pub fn new(
-        scene: &'s Scene,
-        format: HitFormat,
-        mut out: W,
-        region: Rect,
-        tile_px: u32,
-    ) -> io::Result<Self> {
+    pub fn new(scene: Arc<Scene>, format: HitFormat, mut out: W, region: Rect) -> io::Result<Self> {
         match format {
             HitFormat::Json => json::write_start(&mut out, scene.width, scene.height, region)?,
             HitFormat::Npy => out.write_all(&npy_header(region.height, region.width))?,
@@ -59,19 +55,19 @@ impl<'s, W: Write + Send> HitSink<'s, W> {
             format,
             state: Mutex::new(HitState {
                 out,
-                rows: RowAssembler::new(region, tile_px),
-                records: RowAssembler::new(region, tile_px),
+                rows: RowAssembler::new(region),
+                records: RowAssembler::new(region),
                 buf: Vec::new(),
                 first: true,
             }),
         })
     }
 
-    /// Writes the closing bytes and hands back the writer.
-    pub fn finish(self) -> io::Result<W> {
+    /// Writes the closing bytes and flushes the writer, once every row is out.
+    pub fn finish(&self) -> io::Result<()> {
         let mut s = self
             .state
-            .into_inner()
+            .lock()
             .map_err(|_| io::Error::other("a worker panicked while writing"))?;
         let complete = match self.format {
             HitFormat::Json | HitFormat::Csv => s.rows.is_complete(),
@@ -84,14 +80,29 @@ impl<'s, W: Write + Send> HitSink<'s, W> {
         if self.format == HitFormat::Json {
             s.out.write_all(json::END)?;
         }
-        s.out.flush()?;
-        Ok(s.out)
+        s.out.flush()
+    }
+
+    /// Hands back the writer.
+    pub fn into_writer(self) -> io::Result<W> {
+        self.state
+            .into_inner()
+            .map(|s| s.out)
+            .map_err(|_| io::Error::other("a worker panicked while writing"))
     }
 }
 
-impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<'_, W> {
+impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<W> {
+    /// Rows in order for every format but NDJSON, whose lines are tiles.
+    fn tile_shape(&self, region: Rect, tile_px: u32) -> TileShape {
+        match self.format {
+            HitFormat::Ndjson => TileShape::square(tile_px),
+            _ => TileShape::rows(region, tile_px),
+        }
+    }
+
     fn tile(&self, tile: Tile<Option<Surface>>) -> Result<(), SinkClosed> {
-        let scene = self.scene;
+        let scene = &*self.scene;
         match self.format {
             HitFormat::Ndjson => {
                 // Serialise outside the lock: only the write is serialised.
@@ -115,15 +126,18 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<'_, W> {
                     first,
                     ..
                 } = &mut *guard;
-                let x0 = rows.region().x;
-                rows.push(tile, |v, segments| {
+                rows.push(tile, |v, x, segments| {
                     buf.clear();
                     for (k, s) in segments.iter().flat_map(|s| s.iter()).enumerate() {
-                        let p = PixelHit::new(scene, x0 + k as u32, v, s);
+                        let p = PixelHit::new(scene, x + k as u32, v, s);
                         if csv {
                             csv::push_row(buf, &p);
                         } else {
                             json::push_pixel(buf, first, &p)?;
+                        }
+                        if buf.len() >= PIECE_BYTES {
+                            out.write_all(buf)?;
+                            buf.clear();
                         }
                     }
                     out.write_all(buf)
@@ -147,16 +161,15 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<'_, W> {
                     rays: tile.rays,
                 };
                 let mut guard = self.state.lock().map_err(closed)?;
-                let HitState {
-                    out, records, buf, ..
-                } = &mut *guard;
+                let HitState { out, records, .. } = &mut *guard;
                 records
-                    .push(encoded, |_, segments| {
-                        buf.clear();
+                    .push(encoded, |_, _, segments| {
                         for seg in segments {
-                            buf.extend(seg.iter().flatten());
+                            for piece in seg.chunks(PIECE_BYTES / NPY_RECORD_BYTES) {
+                                out.write_all(piece.as_flattened())?;
+                            }
                         }
-                        out.write_all(buf)
+                        Ok::<(), io::Error>(())
                     })
                     .map_err(closed)
             }
@@ -187,8 +200,10 @@ mod tests {
 
     #[test]
     fn every_format_reads_back_the_region_whatever_order_tiles_finish_in() {
-        let scene = crate::scene::parse(include_bytes!("../../scenes/lecture.json"), &Limits::NONE)
-            .unwrap();
+        let scene = Arc::new(
+            crate::scene::parse(include_bytes!("../../scenes/lecture.json"), &Limits::NONE)
+                .unwrap(),
+        );
         let region = Rect {
             x: 1,
             y: 2,
@@ -204,8 +219,8 @@ mod tests {
         }
         for format in HitFormat::ALL {
             let write = |reverse: bool| {
-                let sink = HitSink::new(&scene, format, Vec::new(), region, 2).unwrap();
-                let mut tiles = region.tiles(2);
+                let sink = HitSink::new(scene.clone(), format, Vec::new(), region).unwrap();
+                let mut tiles = sink.tile_shape(region, 2).cut(region);
                 if reverse {
                     tiles.reverse();
                 }
@@ -220,7 +235,8 @@ mod tests {
                     })
                     .unwrap();
                 }
-                sink.finish().unwrap()
+                sink.finish().unwrap();
+                sink.into_writer().unwrap()
             };
             let (forward, backward) = (write(false), write(true));
             if format != HitFormat::Ndjson {

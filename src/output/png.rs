@@ -1,15 +1,17 @@
 //! A PNG written row by row as soon as rows are complete (the encoder and its settings
 //! are [`crate::format::png`]'s).
 //!
-//! Rows are always fed to the encoder one at a time, so the bytes depend only on the
-//! pixels: the same image gives the same file whatever the tile size or thread count.
+//! Rows are fed to the encoder in order, whole or (in a frame too wide for a band) in
+//! pieces left to right, straight from the tiles' pixels; the encoder filters and
+//! compresses whole rows, so the bytes depend only on the pixels: the same image gives
+//! the same file whatever the tile size or shape, the thread count or the pieces.
 
 use std::io::{self, Write};
 use std::sync::{Arc, Mutex};
 
 use super::rows::RowAssembler;
 use crate::format::png::stream_writer;
-use crate::render::{Rect, SinkClosed, Tile, TileSink};
+use crate::render::{Rect, SinkClosed, Tile, TileShape, TileSink};
 
 /// A [`TileSink`] that streams a PNG of `region` into a writer.
 pub struct PngSink<W: Write + Send + 'static> {
@@ -20,7 +22,6 @@ pub struct PngSink<W: Write + Send + 'static> {
 struct State<W: Write + 'static> {
     rows: RowAssembler<[u8; 3]>,
     stream: Option<png::StreamWriter<'static, Checked<W>>>,
-    line: Vec<u8>,
 }
 
 /// Remembers the first error of the inner writer: the PNG encoder writes its trailer
@@ -58,7 +59,7 @@ fn png_err(e: png::EncodingError) -> io::Error {
 
 impl<W: Write + Send + 'static> PngSink<W> {
     /// Writes the PNG header for a `region.width × region.height` image at once.
-    pub fn new(writer: W, region: Rect, tile_px: u32) -> io::Result<Self> {
+    pub fn new(writer: W, region: Rect) -> io::Result<Self> {
         let error = Arc::new(Mutex::new(None));
         let checked = Checked {
             inner: writer,
@@ -67,24 +68,23 @@ impl<W: Write + Send + 'static> PngSink<W> {
         let stream = stream_writer(checked, region.width, region.height).map_err(png_err)?;
         Ok(PngSink {
             state: Mutex::new(State {
-                rows: RowAssembler::new(region, tile_px),
+                rows: RowAssembler::new(region),
                 stream: Some(stream),
-                line: Vec::with_capacity(region.width as usize * 3),
             }),
             error,
         })
     }
 
     /// Completes the file (the last compressed data and the trailer).
-    pub fn finish(self) -> io::Result<()> {
-        let state = self
+    pub fn finish(&self) -> io::Result<()> {
+        let mut state = self
             .state
-            .into_inner()
+            .lock()
             .map_err(|_| io::Error::other("a worker panicked while writing"))?;
         if !state.rows.is_complete() {
             return Err(io::Error::other("the image is incomplete"));
         }
-        if let Some(s) = state.stream {
+        if let Some(s) = state.stream.take() {
             s.finish().map_err(png_err)?;
         }
         match self.error.lock().ok().and_then(|mut e| e.take()) {
@@ -95,22 +95,80 @@ impl<W: Write + Send + 'static> PngSink<W> {
 }
 
 impl<W: Write + Send + 'static> TileSink<[u8; 3]> for PngSink<W> {
+    fn tile_shape(&self, region: Rect, tile_px: u32) -> TileShape {
+        TileShape::rows(region, tile_px)
+    }
+
     fn tile(&self, tile: Tile<[u8; 3]>) -> Result<(), SinkClosed> {
         let mut guard = self
             .state
             .lock()
             .map_err(|_| SinkClosed("a worker panicked while writing".into()))?;
-        let State { rows, stream, line } = &mut *guard;
+        let State { rows, stream } = &mut *guard;
         let Some(stream) = stream.as_mut() else {
             return Err(SinkClosed("the PNG is already finished".into()));
         };
-        rows.push(tile, |_, segments| {
-            line.clear();
-            for seg in segments {
-                line.extend(seg.iter().flatten());
-            }
-            stream.write_all(line)
+        rows.push(tile, |_, _, segments| {
+            segments
+                .iter()
+                .try_for_each(|seg| stream.write_all(seg.as_flattened()))
         })
         .map_err(|e| SinkClosed(e.to_string()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::{Arc, Mutex};
+
+    /// A writer whose bytes stay readable after the sink is done with it.
+    #[derive(Clone, Default)]
+    struct Shared(Arc<Mutex<Vec<u8>>>);
+    impl Write for Shared {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(buf);
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    fn colour(u: u32, v: u32) -> [u8; 3] {
+        [(u * 7) as u8, (v * 31) as u8, ((u ^ v) % 251) as u8]
+    }
+
+    fn encode(region: Rect, tiles: Vec<Rect>) -> Vec<u8> {
+        let out = Shared::default();
+        let sink = PngSink::new(out.clone(), region).unwrap();
+        for t in tiles.into_iter().rev() {
+            let pixels = (t.y..t.y + t.height)
+                .flat_map(|v| (t.x..t.x + t.width).map(move |u| colour(u, v)))
+                .collect();
+            sink.tile(Tile {
+                rect: t,
+                pixels,
+                rays: 0,
+            })
+            .unwrap();
+        }
+        sink.finish().unwrap();
+        out.0.lock().unwrap().clone()
+    }
+
+    #[test]
+    fn the_file_is_the_same_whether_rows_leave_whole_or_in_pieces() {
+        // Wide enough that its bands are one row high and rows leave tile by tile.
+        let region = Rect::frame(40_000, 3);
+        let shape = PngSink::<Shared>::new(Shared::default(), region)
+            .unwrap()
+            .tile_shape(region, 32);
+        assert_eq!(shape.height, 1);
+        let pieces = encode(region, shape.cut(region));
+        let whole = encode(region, region.tiles(32));
+        assert!(pieces == whole, "the bytes depend on how rows were fed");
+        let img = crate::format::png::RgbImage::decode_png(&pieces, Some((40_000, 3))).unwrap();
+        assert_eq!(img.get(39_999, 2), colour(39_999, 2));
     }
 }

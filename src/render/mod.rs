@@ -19,7 +19,8 @@ pub use cost::{CostError, Estimate, RayBudget, TooCostly, Work};
 pub use rect::{OutsideFrame, ParseRectError, Rect, region_in_frame};
 pub use shade::{RayCount, Shader, quantise};
 pub use tiles::{
-    Cancel, DEFAULT_TILE_PX, Kernel, RenderStats, SinkClosed, Stopped, Tile, TileSink, run,
+    BAND_PIXELS, Cancel, DEFAULT_TILE_PX, Kernel, RenderStats, Scheduler, SinkClosed, Step,
+    Stopped, Tile, TileCursor, TileShape, TileSink, run, trace_tile,
 };
 
 /// A scene prepared for tracing: its acceleration structure and camera.

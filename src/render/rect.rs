@@ -44,14 +44,20 @@ impl Rect {
 
     /// The tiles of this rectangle, row-major, each at most `tile_px` square.
     pub fn tiles(&self, tile_px: u32) -> Vec<Rect> {
-        let t = tile_px.max(1);
+        self.tiles_of(tile_px, tile_px)
+    }
+
+    /// The tiles of this rectangle, row-major, each at most `tile_w × tile_h`; the tiles
+    /// of one row of tiles share their top and height.
+    pub fn tiles_of(&self, tile_w: u32, tile_h: u32) -> Vec<Rect> {
+        let (tw, th) = (tile_w.max(1), tile_h.max(1));
         let mut out = Vec::new();
         let mut y = 0;
         while y < self.height {
-            let h = t.min(self.height - y);
+            let h = th.min(self.height - y);
             let mut x = 0;
             while x < self.width {
-                let w = t.min(self.width - x);
+                let w = tw.min(self.width - x);
                 out.push(Rect {
                     x: self.x + x,
                     y: self.y + y,

@@ -1,13 +1,21 @@
-//! The tile loop, written once: the frame (or a region of it) is cut into tiles, rayon
-//! workers take them in row-major order from a shared counter, trace every pixel with a
-//! [`Kernel`], and push each finished tile into a [`TileSink`]. What differs between a
-//! PNG, hit data and a progress bar is the kernel or the sink, never the loop.
+//! The tile loop: the frame (or a region of it) is cut into tiles of the shape its sink
+//! asks for ([`TileSink::tile_shape`]), each tile is traced with a [`Kernel`]
+//! ([`trace_tile`], the one place that does) and pushed into a [`TileSink`]. What
+//! differs between a PNG, hit data and a progress bar is the kernel or the sink.
+//!
+//! Two drivers hand out the tiles, in row-major order: [`run`] blocks its caller until
+//! the last tile (the command line, a grade's reference, the cost pilot), while the
+//! server steps a render a tile at a time through the [`Scheduler`] with a
+//! [`TileCursor`], so that a render whose client does not read can park without holding
+//! a thread, and the tiles of every admitted render interleave on the pool.
 //!
 //! Every pixel is computed from its own `(u, v)` in full-frame coordinates, so the
-//! result does not depend on the tile size, the thread count or the order tiles finish.
+//! result does not depend on the tile size or shape, the thread count or the order
+//! tiles finish.
 
-use std::sync::Arc;
+use std::collections::{BTreeSet, VecDeque};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
@@ -16,6 +24,56 @@ use super::cost::RayBudget;
 
 /// Default tile edge in pixels.
 pub const DEFAULT_TILE_PX: u32 = 32;
+
+/// The most pixels a band (one row of tiles) spans when it is more than one pixel high,
+/// for sinks that write rows in order ([`TileShape::rows`]): they must hold a band's
+/// tiles until its last one is in.
+pub const BAND_PIXELS: u64 = 16 * 1024;
+
+/// The size of the tiles a region is cut into.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TileShape {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+}
+
+impl TileShape {
+    /// `tile_px` square.
+    pub fn square(tile_px: u32) -> TileShape {
+        let t = tile_px.max(1);
+        TileShape {
+            width: t,
+            height: t,
+        }
+    }
+
+    /// Tiles of about `tile_px²` pixels for a sink that writes the rows of `region` in
+    /// order: as high as `tile_px` while a band of them spans at most [`BAND_PIXELS`],
+    /// lower (down to one row, wider to keep their area) for wider regions. A band one
+    /// row high is released tile by tile ([`crate::output::RowAssembler`]), so what a
+    /// sink holds is bounded whatever the region's width.
+    pub fn rows(region: Rect, tile_px: u32) -> TileShape {
+        let t = tile_px.max(1) as u64;
+        let h = (BAND_PIXELS / region.width.max(1) as u64).clamp(1, t);
+        let w = (t * t / h).min(region.width.max(1) as u64).max(1);
+        TileShape {
+            width: w as u32,
+            height: h as u32,
+        }
+    }
+
+    /// Pixels in one tile.
+    pub fn pixels(&self) -> u64 {
+        self.width as u64 * self.height as u64
+    }
+
+    /// The tiles of `region`, row-major.
+    pub fn cut(&self, region: Rect) -> Vec<Rect> {
+        region.tiles_of(self.width, self.height)
+    }
+}
 
 /// A finished tile: its rectangle and its pixels, row-major.
 #[derive(Debug, Clone, PartialEq)]
@@ -40,6 +98,13 @@ pub trait Kernel: Sync {
 pub trait TileSink<T>: Sync {
     /// Takes a finished tile. An error stops the render (e.g. the client left).
     fn tile(&self, tile: Tile<T>) -> Result<(), SinkClosed>;
+
+    /// The tiles it wants for `region` when asked for `tile_px`: square unless it says
+    /// otherwise (a sink writing rows in order wants [`TileShape::rows`]).
+    fn tile_shape(&self, region: Rect, tile_px: u32) -> TileShape {
+        let _ = region;
+        TileShape::square(tile_px)
+    }
 }
 
 /// A sink's way of saying it wants no more tiles.
@@ -125,6 +190,34 @@ pub struct RenderStats {
     pub trace_thread_time: std::time::Duration,
 }
 
+/// Traces the pixels of `r` with `kernel`, row by row, charging `cancel`'s ray budget
+/// and stopping between rows once it is cancelled.
+pub fn trace_tile<K: Kernel>(
+    kernel: &K,
+    r: Rect,
+    cancel: &Cancel,
+) -> Result<Tile<K::Pixel>, Stopped> {
+    let mut pixels = Vec::with_capacity(r.pixels() as usize);
+    let mut n = 0u64;
+    for v in r.y..r.y + r.height {
+        let before = n;
+        for u in r.x..r.x + r.width {
+            pixels.push(kernel.pixel(u, v, &mut n));
+        }
+        // Charged by the row, not the pixel: one atomic add per row costs nothing next
+        // to the row, and a costly render still stops within a row.
+        cancel.charge(n - before);
+        if cancel.is_cancelled() {
+            return Err(Stopped::Cancelled);
+        }
+    }
+    Ok(Tile {
+        rect: r,
+        pixels,
+        rays: n,
+    })
+}
+
 /// Traces every tile of `region` with `kernel` into `sink`, on the current rayon pool.
 /// Blocks until the last tile is handed over, or until cancelled.
 pub fn run<K: Kernel, S: TileSink<K::Pixel>>(
@@ -134,7 +227,7 @@ pub fn run<K: Kernel, S: TileSink<K::Pixel>>(
     cancel: &Cancel,
     sink: &S,
 ) -> Result<RenderStats, Stopped> {
-    let rects = region.tiles(tile_px);
+    let rects = sink.tile_shape(region, tile_px).cut(region);
     let next = AtomicUsize::new(0);
     let rays = std::sync::atomic::AtomicU64::new(0);
     let nanos = std::sync::atomic::AtomicU64::new(0);
@@ -149,28 +242,10 @@ pub fn run<K: Kernel, S: TileSink<K::Pixel>>(
             }
             let r = rects[next.fetch_add(1, Ordering::Relaxed)];
             let started = std::time::Instant::now();
-            let mut pixels = Vec::with_capacity(r.pixels() as usize);
-            let mut n = 0u64;
-            for v in r.y..r.y + r.height {
-                let before = n;
-                for u in r.x..r.x + r.width {
-                    pixels.push(kernel.pixel(u, v, &mut n));
-                }
-                // Charged by the row, not the pixel: one atomic add per row costs nothing
-                // next to the row, and a costly render still stops within a row.
-                cancel.charge(n - before);
-                if cancel.is_cancelled() {
-                    return Err(Stopped::Cancelled);
-                }
-            }
-            rays.fetch_add(n, Ordering::Relaxed);
+            let tile = trace_tile(kernel, r, cancel)?;
+            rays.fetch_add(tile.rays, Ordering::Relaxed);
             nanos.fetch_add(started.elapsed().as_nanos() as u64, Ordering::Relaxed);
-            sink.tile(Tile {
-                rect: r,
-                pixels,
-                rays: n,
-            })
-            .map_err(|e| {
+            sink.tile(tile).map_err(|e| {
                 cancel.cancel();
                 Stopped::Sink(e)
             })
@@ -180,6 +255,170 @@ pub fn run<K: Kernel, S: TileSink<K::Pixel>>(
         rays: rays.into_inner(),
         trace_thread_time: std::time::Duration::from_nanos(nanos.into_inner()),
     })
+}
+
+/// The tiles of a render stepped one at a time, handed out in row-major order but never
+/// more than `window` ahead of the oldest tile still being traced: so a sink that puts
+/// tiles in order holds at most that many out of order, however slow one tile is.
+#[derive(Debug)]
+pub struct TileCursor {
+    rects: Vec<Rect>,
+    window: usize,
+    state: Mutex<CursorState>,
+}
+
+#[derive(Debug, Default)]
+struct CursorState {
+    next: usize,
+    running: BTreeSet<usize>,
+    done: usize,
+}
+
+impl TileCursor {
+    /// For the tiles `rects`, at most `window` (at least 1) ahead of the oldest running.
+    pub fn new(rects: Vec<Rect>, window: usize) -> TileCursor {
+        TileCursor {
+            rects,
+            window: window.max(1),
+            state: Mutex::default(),
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, CursorState> {
+        // The state is a few counters, consistent after every statement.
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn may_take(&self, s: &CursorState) -> bool {
+        let oldest = s.running.first().copied().unwrap_or(s.next);
+        s.next < self.rects.len() && s.next < oldest + self.window
+    }
+
+    /// The next tile and its index, unless all are handed out or the window is full.
+    pub fn take(&self) -> Option<(usize, Rect)> {
+        let mut s = self.lock();
+        if !self.may_take(&s) {
+            return None;
+        }
+        let i = s.next;
+        s.next += 1;
+        s.running.insert(i);
+        Some((i, self.rects[i]))
+    }
+
+    /// Whether [`TileCursor::take`] would hand out a tile now.
+    pub fn can_take(&self) -> bool {
+        self.may_take(&self.lock())
+    }
+
+    /// Marks tile `i` as finished (or abandoned).
+    pub fn finished(&self, i: usize) {
+        let mut s = self.lock();
+        if s.running.remove(&i) {
+            s.done += 1;
+        }
+    }
+
+    /// Whether every tile has been handed out and finished.
+    pub fn is_done(&self) -> bool {
+        self.lock().done == self.rects.len()
+    }
+
+    /// The number of tiles.
+    pub fn len(&self) -> usize {
+        self.rects.len()
+    }
+
+    /// Whether there are no tiles at all.
+    pub fn is_empty(&self) -> bool {
+        self.rects.is_empty()
+    }
+}
+
+/// A piece of CPU work the [`Scheduler`] runs one step at a time.
+pub trait Step: Send + Sync + 'static {
+    /// Does one step (e.g. traces one tile). To go on, it schedules itself again.
+    fn step(self: Arc<Self>, scheduler: &Arc<Scheduler>);
+}
+
+/// One entry of the queue.
+enum Entry {
+    Once(Box<dyn FnOnce() + Send>),
+    Step(Arc<dyn Step>),
+}
+
+/// A rayon pool with one first-come, first-served queue in front of it: every entry is a
+/// step of a render (one tile) or a job run once, and each rayon task takes the entry at
+/// the front of the queue, whichever thread it lands on. A render steps itself back to
+/// the end of the queue after each tile, so the tiles of every admitted render
+/// interleave and a small render waits behind a few tiles of a large one, not behind
+/// all of them (rayon alone would run a worker's own tasks, last in first out, before
+/// anything new).
+pub struct Scheduler {
+    pool: rayon::ThreadPool,
+    queue: Mutex<VecDeque<Entry>>,
+}
+
+impl std::fmt::Debug for Scheduler {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Scheduler")
+            .field("threads", &self.pool.current_num_threads())
+            .field("queued", &self.queued())
+            .finish()
+    }
+}
+
+impl Scheduler {
+    /// Queues work for `pool`.
+    pub fn new(pool: rayon::ThreadPool) -> Arc<Scheduler> {
+        Arc::new(Scheduler {
+            pool,
+            queue: Mutex::new(VecDeque::new()),
+        })
+    }
+
+    /// The pool's threads.
+    pub fn current_num_threads(&self) -> usize {
+        self.pool.current_num_threads()
+    }
+
+    /// Entries waiting now.
+    pub fn queued(&self) -> usize {
+        self.queue.lock().map_or(0, |q| q.len())
+    }
+
+    /// Runs `f` once, in its turn.
+    pub fn spawn(self: &Arc<Self>, f: impl FnOnce() + Send + 'static) {
+        self.push(Entry::Once(Box::new(f)));
+    }
+
+    /// Runs one step of `step`, in its turn.
+    pub fn schedule(self: &Arc<Self>, step: Arc<dyn Step>) {
+        self.push(Entry::Step(step));
+    }
+
+    fn push(self: &Arc<Self>, e: Entry) {
+        self.queue
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push_back(e);
+        // One rayon task per entry: it runs whichever entry is at the front then.
+        let me = self.clone();
+        self.pool.spawn(move || me.run_one());
+    }
+
+    fn run_one(self: &Arc<Self>) {
+        let e = self
+            .queue
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .pop_front();
+        match e {
+            Some(Entry::Once(f)) => f(),
+            Some(Entry::Step(s)) => s.step(self),
+            None => {}
+        }
+    }
 }
 
 #[cfg(test)]
@@ -266,6 +505,109 @@ mod tests {
         let r = run(&Coord, Rect::frame(64, 64), 8, &cancel, &Refuse);
         assert!(matches!(r, Err(Stopped::Sink(_))));
         assert!(cancel.is_cancelled());
+    }
+
+    #[test]
+    fn row_tiles_keep_bands_small_or_one_row_high() {
+        for (w, h) in [
+            (1, 1),
+            (64, 64),
+            (512, 512),
+            (4096, 4096),
+            (16_383, 3),
+            (843_137, 5),
+            (4_000_000, 1),
+        ] {
+            let region = Rect::frame(w, h);
+            let s = TileShape::rows(region, DEFAULT_TILE_PX);
+            assert!(
+                s.height >= 1 && s.height <= DEFAULT_TILE_PX,
+                "{w}×{h}: {s:?}"
+            );
+            assert!(
+                s.height == 1 || w as u64 * s.height as u64 <= BAND_PIXELS,
+                "{w}×{h}: a band of {s:?} spans more than {BAND_PIXELS} pixels"
+            );
+            assert!(s.pixels() <= (DEFAULT_TILE_PX * DEFAULT_TILE_PX) as u64);
+            let tiles = s.cut(region);
+            assert_eq!(tiles.iter().map(Rect::pixels).sum::<u64>(), region.pixels());
+        }
+        // Narrow frames keep the square tiles.
+        assert_eq!(
+            TileShape::rows(Rect::frame(300, 200), 32),
+            TileShape::square(32)
+        );
+    }
+
+    #[test]
+    fn the_cursor_stays_within_its_window_of_the_oldest_running_tile() {
+        let c = TileCursor::new(Rect::frame(100, 1).tiles(1), 3);
+        let (a, _) = c.take().unwrap();
+        let (b, _) = c.take().unwrap();
+        let (d, _) = c.take().unwrap();
+        assert_eq!((a, b, d), (0, 1, 2));
+        assert!(c.take().is_none(), "three ahead of tile 0");
+        c.finished(2);
+        c.finished(1);
+        assert!(!c.can_take(), "tile 0 still runs");
+        c.finished(0);
+        assert_eq!(c.take().map(|t| t.0), Some(3));
+        c.finished(3);
+        while let Some((i, _)) = c.take() {
+            c.finished(i);
+        }
+        assert!(c.is_done());
+    }
+
+    struct Counted {
+        name: u32,
+        left: Mutex<u32>,
+        log: Arc<Mutex<Vec<u32>>>,
+    }
+    impl Step for Counted {
+        fn step(self: Arc<Self>, s: &Arc<Scheduler>) {
+            self.log.lock().unwrap().push(self.name);
+            let mut left = self.left.lock().unwrap();
+            *left -= 1;
+            if *left > 0 {
+                drop(left);
+                s.schedule(self);
+            }
+        }
+    }
+
+    #[test]
+    fn the_scheduler_interleaves_the_steps_of_its_renders() {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let s = Scheduler::new(pool);
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let (tx, rx) = std::sync::mpsc::channel();
+        // Hold the only thread while a large and then a small render are queued.
+        s.spawn(move || {
+            let _ = rx.recv();
+        });
+        let large = Arc::new(Counted {
+            name: 1,
+            left: Mutex::new(100),
+            log: log.clone(),
+        });
+        let small = Arc::new(Counted {
+            name: 2,
+            left: Mutex::new(2),
+            log: log.clone(),
+        });
+        s.schedule(large);
+        s.schedule(small);
+        tx.send(()).unwrap();
+        while log.lock().unwrap().len() < 102 {
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        let log = log.lock().unwrap();
+        let last_small = log.iter().rposition(|&n| n == 2).unwrap();
+        assert!(last_small <= 3, "the small render waited: {:?}", &log[..10]);
     }
 
     #[test]

@@ -105,6 +105,17 @@ impl Admission {
         }
     }
 
+    /// A render slot again for a render that was admitted and then gave its slot back
+    /// while its client was behind (it parked, [`crate::server::render`]): it waits for
+    /// a slot behind those already waiting, but takes no place in the queue and is never
+    /// refused for a full one, since it was admitted once.
+    pub async fn readmit(&self) -> Result<RenderSlot, ApiError> {
+        match self.permits.clone().acquire_owned().await {
+            Ok(p) => Ok(self.slot(p)),
+            Err(_) => Err(ApiError::ShuttingDown),
+        }
+    }
+
     fn slot(&self, permit: OwnedSemaphorePermit) -> RenderSlot {
         self.metrics.in_flight.inc();
         RenderSlot {
@@ -247,6 +258,31 @@ mod tests {
             drop(slot);
             waiter.await.unwrap().unwrap();
             assert_eq!(a.waiting(), 0);
+        });
+    }
+
+    #[test]
+    fn a_parked_render_is_readmitted_past_a_full_queue() {
+        runtime().block_on(async {
+            let a = Arc::new(Admission::new(1, 1, Metrics::new(1, 1).unwrap()));
+            let s = Shutdown::default();
+            let parked = a.admit(&s).await.unwrap();
+            drop(parked);
+            let other = a.admit(&s).await.unwrap();
+            let (a2, s2) = (a.clone(), s.clone());
+            let waiter = tokio::spawn(async move { a2.admit(&s2).await.map(|_| ()) });
+            while a.waiting() == 0 {
+                tokio::time::sleep(Duration::from_millis(1)).await;
+            }
+            assert!(a.is_saturated());
+            let a3 = a.clone();
+            let back = tokio::spawn(async move { a3.readmit().await.map(|_| ()) });
+            tokio::time::sleep(Duration::from_millis(10)).await;
+            assert!(!back.is_finished(), "the slot is taken");
+            assert_eq!(a.waiting(), 1, "readmission takes no place in the queue");
+            drop(other);
+            waiter.await.unwrap().unwrap();
+            back.await.unwrap().unwrap();
         });
     }
 

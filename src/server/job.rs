@@ -1,7 +1,9 @@
 //! CPU work that answers in one piece (`/v1/trace`, `/v1/grade`), run like a render: it
 //! takes a render slot from [`super::admission`] (503 with `Retry-After` when saturated,
-//! 504 when the deadline passes in the queue), runs on the rayon pool, never on tokio's
-//! threads, and frees the slot only when the work is over.
+//! 504 when the deadline passes in the queue), runs on the rayon pool in its turn in the
+//! pool's queue ([`crate::render::Scheduler`], behind the tiles already queued rather
+//! than behind whole renders), never on tokio's threads, and frees the slot only when
+//! the work is over.
 //!
 //! Nothing is streamed, so the status line waits for the result; while it waits, three
 //! things can end the request first: the deadline (504), the end of the shutdown grace

@@ -11,6 +11,7 @@
 //! | `raytile_tiles_traced_total` | counter | |
 //! | `raytile_renders_in_flight` | gauge | |
 //! | `raytile_queue_depth` | gauge | |
+//! | `raytile_renders_parked` | gauge | |
 //! | `raytile_rejected_requests_total` | counter | `reason` (saturated, shutting_down, deadline, over_budget) |
 //! | `raytile_render_slots`, `raytile_queue_capacity` | gauge | |
 
@@ -48,6 +49,8 @@ pub struct Metrics {
     pub in_flight: IntGauge,
     /// Requests waiting for a render slot now.
     pub queue_depth: IntGauge,
+    /// Renders parked now: their client is behind, so they hold no slot and no thread.
+    pub parked: IntGauge,
     /// Requests refused by load shedding, by reason.
     pub rejected: IntCounterVec,
 }
@@ -86,6 +89,10 @@ impl Metrics {
         let in_flight = IntGauge::new("raytile_renders_in_flight", "Renders tracing now.")?;
         let queue_depth =
             IntGauge::new("raytile_queue_depth", "Requests waiting for a render slot.")?;
+        let parked = IntGauge::new(
+            "raytile_renders_parked",
+            "Renders waiting for their client to read, holding no render slot.",
+        )?;
         let rejected = IntCounterVec::new(
             Opts::new(
                 "raytile_rejected_requests_total",
@@ -111,6 +118,7 @@ impl Metrics {
         registry.register(Box::new(tiles.clone()))?;
         registry.register(Box::new(in_flight.clone()))?;
         registry.register(Box::new(queue_depth.clone()))?;
+        registry.register(Box::new(parked.clone()))?;
         registry.register(Box::new(rejected.clone()))?;
         registry.register(Box::new(slots))?;
         registry.register(Box::new(capacity))?;
@@ -122,6 +130,7 @@ impl Metrics {
             tiles,
             in_flight,
             queue_depth,
+            parked,
             rejected,
         })
     }

@@ -42,6 +42,7 @@ use tokio::net::TcpListener;
 use tower_http::catch_panic::CatchPanicLayer;
 
 use crate::config::ServeArgs;
+use crate::render::Scheduler;
 use admission::Admission;
 use metrics::Metrics;
 use shutdown::{Phase, Shutdown};
@@ -59,8 +60,8 @@ pub struct AppState(Arc<Shared>);
 pub struct Shared {
     /// The configuration.
     pub config: ServeArgs,
-    /// The threads that trace.
-    pub pool: rayon::ThreadPool,
+    /// The threads that trace, behind one queue that interleaves the renders' tiles.
+    pub pool: Arc<Scheduler>,
     /// Render slots and the queue.
     pub admission: Admission,
     /// The metrics.
@@ -92,7 +93,7 @@ impl AppState {
         Ok(AppState(Arc::new(Shared {
             admission: Admission::new(slots, config.queue, metrics.clone()),
             config,
-            pool,
+            pool: Scheduler::new(pool),
             metrics,
             shutdown: Shutdown::default(),
         })))

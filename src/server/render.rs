@@ -3,18 +3,27 @@
 //!
 //! The order is the point: every failure is decided before the first byte
 //! (extract and validate, negotiate, admit, estimate the cost), because once the status
-//! line is out it cannot change. Then the job goes to the rayon pool with its render
+//! line is out it cannot change. Then the job goes to the pool's queue with its render
 //! slot; there it builds the acceleration structure and runs the cost pilot
 //! ([`CostLimit::check`]), whose verdict the handler awaits: a scene past `--max-rays`
 //! is refused with 422, any other returns with a body fed by [`super::stream`].
 //!
-//! After the first byte, four things can cut the stream: the client leaving (the
-//! channel closes; tracing stops at the next tile), the deadline (a tokio timer cancels
-//! the render), the end of the shutdown grace period, and the render's ray budget (its
-//! cancel token goes up once it has traced half as much again as `--max-rays`; its
-//! outcome is `over_budget`). A cut stream ends with a body
-//! error, so hyper aborts the transfer and the client cannot mistake a partial image for
-//! a whole one.
+//! The tiles are then traced a step at a time on the [`Scheduler`] (one tile a step, as
+//! many lanes as the pool has threads), so the tiles of every admitted render
+//! interleave. Before each tile a lane checks whether the client is behind
+//! ([`BodyWriter::is_backed_up`]); if so the render parks once its last lane stops: it
+//! holds no thread, gives back its render slot, and waits on the runtime for its client
+//! ([`BodyWriter::room`]); when the client has read it takes a slot again
+//! ([`super::admission::Admission::readmit`]) and its lanes resume. A client that takes
+//! nothing for `--stall-seconds` stops it for good (outcome `cancelled`).
+//!
+//! After the first byte, five things can cut the stream: the client leaving (the body
+//! is dropped; tracing stops at the next tile), the client taking nothing for
+//! `--stall-seconds`, the deadline (a tokio timer cancels the render), the end of the
+//! shutdown grace period, and the render's ray budget (its cancel token goes up once it
+//! has traced half as much again as `--max-rays`; its outcome is `over_budget`). A cut
+//! stream ends with a body error, so hyper aborts the transfer and the client cannot
+//! mistake a partial image for a whole one.
 //!
 //! Headers: `X-Raytile-Width` and `X-Raytile-Height` (the size of this answer's image),
 //! `X-Raytile-Region` (`x,y,w,h` in the full frame), and `Server-Timing` with `parse`
@@ -24,7 +33,8 @@
 //! line and the `raytile_render_duration_seconds` histogram.
 
 use std::panic::AssertUnwindSafe;
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use axum::Router;
@@ -39,14 +49,14 @@ use super::AppState;
 use super::admission::{CostLimit, RenderSlot};
 use super::error::ApiError;
 use super::extract::{Accepted, Offers, RegionQuery, RequestInfo, SceneBody, deadline_exceeded};
-use super::metrics::Metrics;
 use super::shutdown::Phase;
-use super::stream::{self, Aborter, BodyWriter};
+use super::stream::{self, Aborter, BodyWriter, Room};
 use crate::format::{HitFormat, png};
+use crate::output::rows::{LANES_PER_THREAD, WINDOW_PER_LANE};
 use crate::output::{HitSink, PngSink};
 use crate::render::{
-    self, Cancel, ColourKernel, HitKernel, Rect, RenderStats, Renderer, SinkClosed, Stopped, Tile,
-    TileSink, Work,
+    Cancel, ColourKernel, HitKernel, Rect, RenderStats, Renderer, Scheduler, SinkClosed, Step,
+    Stopped, TileCursor, TileShape, TileSink, Work, trace_tile,
 };
 use crate::scene::Scene;
 
@@ -171,7 +181,7 @@ async fn start(
     let queue = queued.elapsed();
     let trailers = wants_trailers(headers);
 
-    let (writer, stream_body) = stream::channel(app.config.stall());
+    let (writer, stream_body) = stream::channel();
     let cost = CostLimit::new(&app.config);
     let cut = Cut::new(writer.aborter(), cost.token());
     let done = spawn_watch(&app, cut.clone(), deadline);
@@ -189,6 +199,7 @@ async fn start(
         cost,
         verdict: verdict_tx,
         span: tracing::Span::current(),
+        runtime: tokio::runtime::Handle::current(),
     };
     app.pool.spawn(move || job.run());
     // The watch cuts the pilot at the deadline and counts it; this timeout only makes
@@ -295,7 +306,7 @@ fn spawn_watch(app: &AppState, cut: Cut, deadline: Instant) -> oneshot::Sender<(
     done_tx
 }
 
-/// Everything a render needs on its rayon thread.
+/// Everything a render needs to start on a trace thread.
 struct Job {
     app: AppState,
     scene: Arc<Scene>,
@@ -310,6 +321,8 @@ struct Job {
     /// Whether the render may start: the cost pilot's answer, sent before any tracing.
     verdict: oneshot::Sender<Result<(), ApiError>>,
     span: tracing::Span,
+    /// Where a parked render waits for its client.
+    runtime: tokio::runtime::Handle,
 }
 
 /// Why a job stopped early.
@@ -319,10 +332,13 @@ enum Failure {
     Stopped(#[from] Stopped),
     #[error("cannot write the output: {0}")]
     Io(#[from] std::io::Error),
+    #[error("a trace thread panicked")]
+    Panicked,
 }
 
 impl Job {
-    /// Traces, streams and reports; runs on a rayon thread.
+    /// Builds the acceleration structure, checks the cost, writes the output's header
+    /// and schedules the tiles; runs on a trace thread.
     fn run(self) {
         let Job {
             app,
@@ -337,6 +353,7 @@ impl Job {
             cost,
             verdict,
             span,
+            runtime,
         } = self;
         let _enter = span.enter();
         let started = Instant::now();
@@ -382,14 +399,251 @@ impl Job {
                 return;
             }
         };
-        let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
-            trace(&app, renderer, region, output, &cut.cancel, &writer)
-        }));
-        let elapsed = started.elapsed();
-        let outcome = match result {
-            Ok(Ok(stats)) => {
-                let t = trailers.then(|| render_trailers(elapsed, stats));
-                match writer.finish(t) {
+        let sink = match output {
+            Output::Png => PngSink::new(writer.clone(), region).map(|s| Sink::Png(Box::new(s))),
+            Output::Hits(f) => {
+                HitSink::new(renderer.scene.clone(), f, writer.clone(), region).map(Sink::Hits)
+            }
+        }
+        .and_then(|sink| writer.send_pending().map(|()| sink));
+        let lanes = app.pool.current_num_threads().max(1) * LANES_PER_THREAD;
+        let (rects, sink, failure) = match sink {
+            Ok(sink) => (
+                sink.shape(region, app.config.tile).cut(region),
+                Some(sink),
+                None,
+            ),
+            Err(e) => (Vec::new(), None, Some(Failure::Io(e))),
+        };
+        let render = Arc::new(Render {
+            app: app.clone(),
+            renderer,
+            output,
+            sink,
+            cursor: TileCursor::new(rects, lanes * WINDOW_PER_LANE),
+            lanes,
+            cut,
+            writer,
+            trailers,
+            runtime,
+            span: span.clone(),
+            started,
+            rays: AtomicU64::new(0),
+            stalled: AtomicBool::new(false),
+            lanes_state: Mutex::new(Lanes {
+                running: lanes,
+                parking: false,
+                parked: false,
+                failure,
+                finished: false,
+                slot: Some(slot),
+                done: Some(done),
+            }),
+        });
+        for _ in 0..lanes {
+            app.pool.schedule(render.clone());
+        }
+    }
+}
+
+/// The sink a render writes into.
+enum Sink {
+    Png(Box<PngSink<BodyWriter>>),
+    Hits(HitSink<BodyWriter>),
+}
+
+impl Sink {
+    fn shape(&self, region: Rect, tile_px: u32) -> TileShape {
+        match self {
+            Sink::Png(s) => s.tile_shape(region, tile_px),
+            Sink::Hits(s) => s.tile_shape(region, tile_px),
+        }
+    }
+
+    fn finish(&self) -> std::io::Result<()> {
+        match self {
+            Sink::Png(s) => s.finish(),
+            Sink::Hits(s) => s.finish(),
+        }
+    }
+}
+
+/// A render being traced: `lanes` steps of it at a time on the scheduler, each one
+/// tile. Before each tile a lane checks that the client is not behind; when it is, the
+/// lanes stop, and once the last has stopped the render parks: it gives back its slot
+/// and waits on the runtime for the client ([`BodyWriter::room`]); when the client has
+/// read, it takes a slot again and its lanes resume. A client that takes nothing for
+/// `--stall-seconds` stops it for good.
+struct Render {
+    app: AppState,
+    renderer: Renderer,
+    output: Output,
+    /// None when it could not be started (its header could not be written).
+    sink: Option<Sink>,
+    cursor: TileCursor,
+    lanes: usize,
+    cut: Cut,
+    writer: BodyWriter,
+    trailers: bool,
+    runtime: tokio::runtime::Handle,
+    span: tracing::Span,
+    started: Instant,
+    rays: AtomicU64,
+    /// The client took nothing for the whole stall period.
+    stalled: AtomicBool,
+    lanes_state: Mutex<Lanes>,
+}
+
+/// The lanes of a [`Render`] and what it holds.
+struct Lanes {
+    /// Lanes scheduled or running a step.
+    running: usize,
+    /// A lane found the client behind: no lane goes on until the render resumes.
+    parking: bool,
+    /// Every lane has stopped and the render waits for its client.
+    parked: bool,
+    /// The first reason a lane stopped for good.
+    failure: Option<Failure>,
+    finished: bool,
+    slot: Option<RenderSlot>,
+    /// Ends the deadline watch when dropped.
+    done: Option<oneshot::Sender<()>>,
+}
+
+/// What one step of a lane did.
+enum Stepped {
+    /// Traced a tile and handed it to the sink.
+    Traced,
+    /// Found no tile to take now (all taken, or the window full).
+    Idle,
+    /// Found the client behind.
+    Behind,
+    Failed(Failure),
+}
+
+impl Render {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Lanes> {
+        // Every update of the state is a few assignments, consistent at every point.
+        self.lanes_state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// One tile, unless the render must stop or wait.
+    fn one_tile(&self) -> Stepped {
+        let Some(sink) = &self.sink else {
+            return Stepped::Idle;
+        };
+        if self.cut.cancel.is_cancelled() {
+            return Stepped::Failed(Stopped::Cancelled.into());
+        }
+        if self.writer.is_closed() {
+            return Stepped::Failed(
+                Stopped::Sink(SinkClosed("the client went away".into())).into(),
+            );
+        }
+        if self.writer.is_backed_up() {
+            return Stepped::Behind;
+        }
+        let Some((i, rect)) = self.cursor.take() else {
+            return Stepped::Idle;
+        };
+        let traced = std::panic::catch_unwind(AssertUnwindSafe(|| self.trace(sink, rect)));
+        self.cursor.finished(i);
+        match traced {
+            Ok(Ok(())) => Stepped::Traced,
+            Ok(Err(e)) => Stepped::Failed(e),
+            Err(_) => Stepped::Failed(Failure::Panicked),
+        }
+    }
+
+    fn trace(&self, sink: &Sink, rect: Rect) -> Result<(), Failure> {
+        let cancel = &self.cut.cancel;
+        let sent = match sink {
+            Sink::Png(s) => {
+                let t = trace_tile(&ColourKernel(&self.renderer), rect, cancel)?;
+                self.count(t.rays);
+                s.tile(t)
+            }
+            Sink::Hits(s) => {
+                let t = trace_tile(&HitKernel(&self.renderer), rect, cancel)?;
+                self.count(t.rays);
+                s.tile(t)
+            }
+        };
+        sent.map_err(Stopped::Sink)?;
+        // The bytes the tile released leave now if the client is waiting for them.
+        self.writer.send_pending()?;
+        Ok(())
+    }
+
+    fn count(&self, rays: u64) {
+        self.rays.fetch_add(rays, Ordering::Relaxed);
+        self.app.metrics.rays.inc_by(rays);
+        self.app.metrics.tiles.inc();
+    }
+
+    /// Parks: gives back the slot and waits on the runtime for the client.
+    fn park(self: &Arc<Self>, l: &mut Lanes, scheduler: &Arc<Scheduler>) {
+        l.parked = true;
+        drop(l.slot.take());
+        self.app.metrics.parked.inc();
+        tracing::debug!(
+            queued = self.writer.queued_bytes(),
+            "render parked: the client is behind"
+        );
+        let (me, scheduler) = (self.clone(), scheduler.clone());
+        self.runtime.spawn(async move {
+            let slot = match me.writer.room(me.app.config.stall()).await {
+                Room::Ready => tokio::select! {
+                    s = me.app.admission.readmit() => s.ok(),
+                    _ = me.writer.aborted() => None,
+                },
+                Room::Stalled => {
+                    me.stalled.store(true, Ordering::Relaxed);
+                    me.cut.cancel.cancel();
+                    None
+                }
+                // The lanes find out why at their first step.
+                Room::Closed | Room::Aborted => None,
+            };
+            if slot.is_none() && !me.cut.cancel.is_cancelled() && !me.writer.is_closed() {
+                me.cut.pull(SHUTTING_DOWN);
+            }
+            me.app.metrics.parked.dec();
+            me.resume(slot, &scheduler);
+        });
+    }
+
+    /// Takes the slot back and starts every lane again.
+    fn resume(self: &Arc<Self>, slot: Option<RenderSlot>, scheduler: &Arc<Scheduler>) {
+        {
+            let mut l = self.lock();
+            l.parked = false;
+            l.parking = false;
+            l.slot = slot;
+            l.running = self.lanes;
+        }
+        for _ in 0..self.lanes {
+            scheduler.schedule(self.clone());
+        }
+    }
+
+    /// Completes the body (or fails it), records the outcome and frees the slot.
+    fn finish(&self, l: &mut Lanes) {
+        l.finished = true;
+        let elapsed = self.started.elapsed();
+        let failure = l.failure.take().or_else(|| {
+            let sink = self.sink.as_ref()?;
+            sink.finish().err().map(Failure::Io)
+        });
+        let outcome = match failure {
+            None => {
+                let stats = RenderStats {
+                    tiles: self.cursor.len() as u64,
+                    rays: self.rays.load(Ordering::Relaxed),
+                    trace_thread_time: Duration::ZERO,
+                };
+                let t = self.trailers.then(|| render_trailers(elapsed, stats));
+                match self.writer.finish(t) {
                     Ok(()) => {
                         tracing::debug!(rays = stats.rays, tiles = stats.tiles, "render complete");
                         "complete"
@@ -397,49 +651,98 @@ impl Job {
                     Err(_) => "cancelled",
                 }
             }
-            Ok(Err(e)) => {
-                // A sink error or a cancel can follow from the client leaving or from a
-                // cut; anything else is a fault.
-                let why = if writer.is_closed() {
-                    "the client went away"
-                } else if writer.has_stalled() {
-                    "the client stopped reading"
-                } else if cut.cancel.is_over_budget() {
-                    OVER_BUDGET
-                } else if let Some(why) = cut.why.get() {
-                    why
-                } else if matches!(e, Failure::Stopped(Stopped::Cancelled)) {
-                    "cancelled"
-                } else {
-                    ""
-                };
-                if why.is_empty() {
-                    tracing::error!(error = %e, "render failed");
-                    writer.fail(format!("the render failed: {e}"));
-                    "failed"
-                } else if why == OVER_BUDGET {
-                    let limit = cut.cancel.budget().map_or(0, |b| b.limit());
-                    tracing::warn!(limit, "render stopped early: {why}");
-                    writer.fail(format!("{why} of {limit} rays"));
-                    "over_budget"
-                } else {
-                    tracing::info!(reason = why, "render stopped early");
-                    writer.fail(why);
-                    "cancelled"
-                }
-            }
-            Err(_) => {
-                tracing::error!("a render panicked");
-                writer.fail("the render failed");
-                "failed"
-            }
+            Some(e) => self.fail(e),
         };
-        app.metrics
-            .render_duration(output.label(), outcome)
+        self.app
+            .metrics
+            .render_duration(self.output.label(), outcome)
             .observe(elapsed.as_secs_f64());
         // Free the slot only now, after the last byte was handed over.
-        drop(slot);
-        drop(done);
+        drop(l.slot.take());
+        drop(l.done.take());
+    }
+
+    /// Ends the body with the reason it stopped; returns the outcome.
+    fn fail(&self, e: Failure) -> &'static str {
+        // A sink error or a cancel can follow from the client leaving or from a cut;
+        // anything else is a fault.
+        let why = if self.writer.is_closed() {
+            "the client went away"
+        } else if self.stalled.load(Ordering::Relaxed) {
+            "the client stopped reading"
+        } else if self.cut.cancel.is_over_budget() {
+            OVER_BUDGET
+        } else if let Some(why) = self.cut.why.get() {
+            why
+        } else if matches!(e, Failure::Stopped(Stopped::Cancelled)) {
+            "cancelled"
+        } else {
+            ""
+        };
+        if why.is_empty() {
+            tracing::error!(error = %e, "render failed");
+            self.writer.fail(format!("the render failed: {e}"));
+            "failed"
+        } else if why == OVER_BUDGET {
+            let limit = self.cut.cancel.budget().map_or(0, |b| b.limit());
+            tracing::warn!(limit, "render stopped early: {why}");
+            self.writer.fail(format!("{why} of {limit} rays"));
+            "over_budget"
+        } else {
+            tracing::info!(reason = why, "render stopped early");
+            self.writer.fail(why);
+            "cancelled"
+        }
+    }
+}
+
+impl Step for Render {
+    fn step(self: Arc<Self>, scheduler: &Arc<Scheduler>) {
+        let span = self.span.clone();
+        let _enter = span.enter();
+        let stepped = self.one_tile();
+        let mut l = self.lock();
+        let mut more = 0;
+        match stepped {
+            Stepped::Traced if !l.parking && l.failure.is_none() => {
+                // This lane goes on, and lanes that found the window full come back
+                // now that it has moved.
+                more = 1;
+                while l.running < self.lanes && self.cursor.can_take() {
+                    l.running += 1;
+                    more += 1;
+                }
+            }
+            Stepped::Traced | Stepped::Idle => l.running -= 1,
+            Stepped::Behind => {
+                l.running -= 1;
+                l.parking = true;
+            }
+            Stepped::Failed(e) => {
+                l.running -= 1;
+                if l.failure.is_none() {
+                    l.failure = Some(e);
+                }
+                // The other lanes stop at their next row.
+                self.cut.cancel.cancel();
+            }
+        }
+        if l.running == 0 && !l.finished && !l.parked {
+            if l.failure.is_some() || self.cursor.is_done() || self.sink.is_none() {
+                self.finish(&mut l);
+            } else if l.parking {
+                self.park(&mut l, scheduler);
+            } else {
+                // Every lane found the window full while no tile ran: cannot happen
+                // (the oldest tile running opens it), but a lane more costs nothing.
+                l.running = 1;
+                more = 1;
+            }
+        }
+        drop(l);
+        for _ in 0..more {
+            scheduler.schedule(self.clone());
+        }
     }
 }
 
@@ -453,70 +756,6 @@ fn render_trailers(elapsed: Duration, stats: RenderStats) -> HeaderMap {
     }
     t.insert(X_RAYTILE_RAYS, HeaderValue::from(stats.rays));
     t
-}
-
-/// Builds the sink for `output`, sends its header at once, traces, and completes it.
-fn trace(
-    app: &AppState,
-    renderer: Renderer,
-    region: Rect,
-    output: Output,
-    cancel: &Cancel,
-    writer: &BodyWriter,
-) -> Result<RenderStats, Failure> {
-    let tile = app.config.tile;
-    match output {
-        Output::Png => {
-            let png = PngSink::new(writer.clone(), region, tile)?;
-            writer.send_pending()?;
-            let sink = Observed::new(&png, writer, &app.metrics);
-            let stats = render::run(&ColourKernel(&renderer), region, tile, cancel, &sink)?;
-            png.finish()?;
-            Ok(stats)
-        }
-        Output::Hits(format) => {
-            let hits = HitSink::new(&renderer.scene, format, writer.clone(), region, tile)?;
-            writer.send_pending()?;
-            let sink = Observed::new(&hits, writer, &app.metrics);
-            let stats = render::run(&HitKernel(&renderer), region, tile, cancel, &sink)?;
-            hits.finish()?;
-            Ok(stats)
-        }
-    }
-}
-
-/// Wraps a sink: counts rays and tiles into the metrics, refuses tiles once the client
-/// is gone (so tracing stops even while no bytes are due), and sends the bytes each
-/// tile released (a completed band of rows, or an NDJSON line) without waiting for a
-/// full chunk, so the first rows leave early.
-struct Observed<'a, S> {
-    inner: &'a S,
-    writer: &'a BodyWriter,
-    metrics: &'a Metrics,
-}
-
-impl<'a, S> Observed<'a, S> {
-    fn new(inner: &'a S, writer: &'a BodyWriter, metrics: &'a Metrics) -> Self {
-        Observed {
-            inner,
-            writer,
-            metrics,
-        }
-    }
-}
-
-impl<T, S: TileSink<T>> TileSink<T> for Observed<'_, S> {
-    fn tile(&self, tile: Tile<T>) -> Result<(), SinkClosed> {
-        self.metrics.rays.inc_by(tile.rays);
-        self.metrics.tiles.inc();
-        if self.writer.is_closed() {
-            return Err(SinkClosed("the client went away".into()));
-        }
-        self.inner.tile(tile)?;
-        self.writer
-            .send_pending()
-            .map_err(|e| SinkClosed(e.to_string()))
-    }
 }
 
 #[cfg(test)]

@@ -1,97 +1,171 @@
 //! The bridge from the renderer's blocking world to an HTTP body.
 //!
 //! The sinks of [`crate::output`] write into any `std::io::Write`. [`BodyWriter`] is that
-//! writer: it gathers bytes into chunks and hands each to a bounded tokio channel, waiting
-//! on the rayon thread that produced them when the channel is full. [`StreamBody`] is the other
-//! end, an `http_body::Body` that hyper polls on a tokio thread. So tokio only moves
-//! bytes, and a slow client slows its own render (the channel is bounded) instead of
-//! piling the image up in memory.
+//! writer: it cuts the bytes into chunks of at most [`CHUNK_BYTES`] and queues them for
+//! [`StreamBody`], the `http_body::Body` that hyper polls on a tokio thread. So tokio
+//! only moves bytes, and whatever a sink writes at once (a whole band of rows, an NDJSON
+//! line), no chunk is larger than 64 KiB.
 //!
-//! A send into a closed channel means the client left: the write fails, the sink
-//! refuses the next tile, and [`crate::render::run`] stops between tiles. A send into a
-//! full channel waits for the client, but not for ever: [`Aborter::abort`] (the deadline,
-//! the end of the shutdown grace period) ends the wait, so a client that stops reading
-//! cannot hold a rayon thread past its deadline.
+//! A write never waits: a render thread must not be held by a client that does not
+//! read. Instead the render asks before each tile whether the output is backed up
+//! ([`BodyWriter::is_backed_up`]: [`IN_FLIGHT_BYTES`] queued, [`IN_FLIGHT_CHUNKS`] full
+//! chunks) and, when it is, parks: it traces nothing, gives back its thread and its
+//! render slot, and waits on the runtime in [`BodyWriter::room`] until the client has
+//! taken half of it (the body's poll wakes the wait), or until `--stall-seconds` pass
+//! without the client taking anything, which stops the render for good
+//! ([`crate::server::render`]). So the queue holds at most [`IN_FLIGHT_BYTES`] plus what
+//! the tiles being traced when it filled release, which [`crate::output::rows`] bounds.
+//!
+//! A write into a body that is gone means the client left: the write fails, the sink
+//! refuses the next tile, and the render stops. [`Aborter::abort`] (the deadline, the
+//! end of the shutdown grace period) makes every later write fail and ends a wait for
+//! room.
 //!
 //! The stream ends in one of three ways, and only the first is a complete body:
 //! [`BodyWriter::finish`] (optionally with trailers), [`BodyWriter::fail`] (the body
 //! errors, so hyper cuts the connection and the client sees a truncated transfer), or
-//! the writer being dropped without either (treated as a failure, so a render that
+//! the last writer being dropped without either (treated as a failure, so a render that
 //! died half-way can never look like a finished image).
 
+use std::collections::VecDeque;
 use std::io::{self, Write};
 use std::pin::Pin;
-use std::sync::{Arc, Mutex};
-use std::task::{Context, Poll};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::task::{Context, Poll, Waker};
+use std::time::Duration;
 
 use axum::http::HeaderMap;
 use bytes::Bytes;
-use futures::future::{Either, select};
 use http_body::{Frame, SizeHint};
-use tokio::sync::{mpsc, watch};
+use tokio::sync::{Notify, watch};
 
-/// Bytes gathered before a chunk is sent (unless a band completes first).
+/// The largest chunk a body sends.
 pub const CHUNK_BYTES: usize = 64 * 1024;
 
-/// Chunks that may wait in the channel: up to `CHANNEL_CHUNKS × CHUNK_BYTES` (2 MiB)
-/// buffered per response before the render waits for the client.
-pub const CHANNEL_CHUNKS: usize = 32;
+/// Full chunks a response may have queued for its client before its render parks.
+pub const IN_FLIGHT_CHUNKS: usize = 32;
 
-/// What travels down the channel.
+/// Bytes a response may have queued for its client before its render parks (2 MiB).
+pub const IN_FLIGHT_BYTES: usize = IN_FLIGHT_CHUNKS * CHUNK_BYTES;
+
+/// A parked render resumes once the queue is down to this.
+pub const RESUME_BYTES: usize = IN_FLIGHT_BYTES / 2;
+
+/// How the body ends.
 #[derive(Debug)]
-enum Item {
-    Data(Bytes),
-    End(Option<HeaderMap>),
+enum End {
+    Trailers(Option<HeaderMap>),
     Fail(io::Error),
 }
 
-/// A body fed from another thread: the writer and the body it feeds. Called on the
-/// runtime, whose timer then bounds each wait of the writer for the client by `stall`:
-/// a client that stops reading must not hold the trace threads, which every other
-/// render needs, until its deadline.
-pub fn channel(stall: std::time::Duration) -> (BodyWriter, StreamBody) {
-    let (tx, rx) = mpsc::channel(CHANNEL_CHUNKS);
+/// The queue between the writers and the body.
+#[derive(Debug, Default)]
+struct Queue {
+    /// Bytes not yet a chunk (fewer than [`CHUNK_BYTES`]).
+    pending: Vec<u8>,
+    chunks: VecDeque<Bytes>,
+    /// Bytes in `chunks`.
+    queued: usize,
+    /// Set once, by the first of finish, fail, or the last writer's drop.
+    end: Option<End>,
+    /// The body has taken `end`.
+    done: bool,
+    /// The body was dropped (the client left or the response was discarded).
+    body_gone: bool,
+    /// Chunks the body has taken: progress, for the stall rule.
+    taken: u64,
+    waker: Option<Waker>,
+}
+
+#[derive(Debug)]
+struct Shared {
+    queue: Mutex<Queue>,
+    /// Woken when the body takes a chunk or goes away.
+    room: Notify,
+    abort: watch::Sender<bool>,
+}
+
+impl Shared {
+    fn lock(&self) -> io::Result<MutexGuard<'_, Queue>> {
+        self.queue.lock().map_err(|_| poisoned())
+    }
+
+    /// Ends the body (unless it has ended) and wakes it.
+    fn end(&self, end: End) -> bool {
+        let Ok(mut q) = self.queue.lock() else {
+            return false;
+        };
+        if q.end.is_some() {
+            return false;
+        }
+        q.end = Some(end);
+        if let Some(w) = q.waker.take() {
+            w.wake();
+        }
+        true
+    }
+}
+
+/// A body fed from other threads: the writer and the body it feeds.
+pub fn channel() -> (BodyWriter, StreamBody) {
+    let shared = Arc::new(Shared {
+        queue: Mutex::new(Queue::default()),
+        room: Notify::new(),
+        abort: watch::Sender::new(false),
+    });
     (
         BodyWriter {
-            tx,
-            pending: Arc::new(Mutex::new(Vec::with_capacity(CHUNK_BYTES))),
-            abort: Arc::new(watch::Sender::new(false)),
-            runtime: tokio::runtime::Handle::try_current().ok(),
-            stall,
-            stalled: Arc::new(std::sync::atomic::AtomicBool::new(false)),
+            _last: Arc::new(LastWriter(shared.clone())),
+            shared: shared.clone(),
         },
-        StreamBody {
-            rx,
-            state: BodyState::Open,
-        },
+        StreamBody { shared },
     )
 }
 
-/// The sending half: a blocking [`Write`] for rayon threads. Cheap to clone; all clones
-/// share one buffer, so bytes leave in the order they were written.
-#[derive(Debug, Clone)]
-pub struct BodyWriter {
-    tx: mpsc::Sender<Item>,
-    pending: Arc<Mutex<Vec<u8>>>,
-    abort: Arc<watch::Sender<bool>>,
-    /// The runtime whose timer bounds a wait (none outside a runtime, e.g. in unit tests).
-    runtime: Option<tokio::runtime::Handle>,
-    /// The longest wait for room in the channel.
-    stall: std::time::Duration,
-    /// Set when a wait ran out: the client stopped reading.
-    stalled: Arc<std::sync::atomic::AtomicBool>,
+/// Fails the body when the last writer goes without finishing it.
+#[derive(Debug)]
+struct LastWriter(Arc<Shared>);
+
+impl Drop for LastWriter {
+    fn drop(&mut self) {
+        self.0.end(End::Fail(io::Error::other(
+            "the render stopped without finishing",
+        )));
+    }
 }
 
-/// Ends any wait of a [`BodyWriter`] for room in the channel, now and later. Holding one
-/// does not keep the body open.
+/// The sending half: a [`Write`] that never blocks. Cheap to clone; all clones share
+/// one queue, so bytes leave in the order they were written.
 #[derive(Debug, Clone)]
-pub struct Aborter(Arc<watch::Sender<bool>>);
+pub struct BodyWriter {
+    shared: Arc<Shared>,
+    /// Shared by the clones: the body fails when the last one goes unfinished.
+    _last: Arc<LastWriter>,
+}
+
+/// Makes every later write of a [`BodyWriter`] fail and ends its waits for room.
+/// Holding one does not keep the body open.
+#[derive(Debug, Clone)]
+pub struct Aborter(Arc<Shared>);
 
 impl Aborter {
-    /// Makes every later or waiting send fail at once.
+    /// Makes every later write fail at once, and ends a wait for room.
     pub fn abort(&self) {
-        self.0.send_replace(true);
+        self.0.abort.send_replace(true);
     }
+}
+
+/// How a wait for room ended ([`BodyWriter::room`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Room {
+    /// The client took enough: the render may go on.
+    Ready,
+    /// The body is gone: the client left.
+    Closed,
+    /// The writer was aborted (deadline, shutdown).
+    Aborted,
+    /// The client took nothing for the whole stall period.
+    Stalled,
 }
 
 fn gone() -> io::Error {
@@ -106,128 +180,190 @@ fn aborted() -> io::Error {
     io::Error::new(io::ErrorKind::TimedOut, "the response was cut")
 }
 
-fn stalled() -> io::Error {
-    io::Error::new(
-        io::ErrorKind::TimedOut,
-        "the client took nothing for too long",
-    )
+fn ended() -> io::Error {
+    io::Error::other("the response has already ended")
+}
+
+impl Queue {
+    /// Queues the pending bytes as a chunk of their own size.
+    fn push_pending(&mut self) {
+        if self.pending.is_empty() {
+            return;
+        }
+        let chunk = if self.pending.len() == CHUNK_BYTES {
+            Bytes::from(std::mem::take(&mut self.pending))
+        } else {
+            // A copy of its own size: a short chunk must not pin a 64 KiB buffer.
+            let c = Bytes::copy_from_slice(&self.pending);
+            self.pending.clear();
+            c
+        };
+        self.queued += chunk.len();
+        self.chunks.push_back(chunk);
+        if let Some(w) = self.waker.take() {
+            w.wake();
+        }
+    }
+
+    fn writable(&self, abort: &watch::Sender<bool>) -> io::Result<()> {
+        if self.body_gone {
+            Err(gone())
+        } else if *abort.borrow() {
+            Err(aborted())
+        } else if self.end.is_some() {
+            Err(ended())
+        } else {
+            Ok(())
+        }
+    }
 }
 
 impl BodyWriter {
-    /// A handle that ends waits for the client.
+    /// A handle that cuts the writer.
     pub fn aborter(&self) -> Aborter {
-        Aborter(self.abort.clone())
-    }
-
-    /// Hands `item` to the body, waiting while the channel is full, until the client
-    /// leaves or the writer is aborted. Must not be called on a tokio thread.
-    fn send(&self, item: Item) -> io::Result<()> {
-        if *self.abort.borrow() {
-            return Err(aborted());
-        }
-        let item = match self.tx.try_send(item) {
-            Ok(()) => return Ok(()),
-            Err(mpsc::error::TrySendError::Closed(_)) => return Err(gone()),
-            Err(mpsc::error::TrySendError::Full(item)) => item,
-        };
-        let mut abort = self.abort.subscribe();
-        let wait = async {
-            let send = std::pin::pin!(self.tx.send(item));
-            let stop = std::pin::pin!(abort.wait_for(|a| *a));
-            match select(send, stop).await {
-                Either::Left((Ok(()), _)) => Ok(()),
-                Either::Left((Err(_), _)) => Err(gone()),
-                Either::Right(_) => Err(aborted()),
-            }
-        };
-        match &self.runtime {
-            // A rayon thread is no runtime thread, so it may block on the runtime's handle.
-            Some(rt) => rt.block_on(async {
-                tokio::time::timeout(self.stall, wait)
-                    .await
-                    .unwrap_or_else(|_| {
-                        self.stalled
-                            .store(true, std::sync::atomic::Ordering::Relaxed);
-                        Err(stalled())
-                    })
-            }),
-            None => futures::executor::block_on(wait),
-        }
-    }
-
-    /// Whether a wait for the client ran out (it stopped reading).
-    pub fn has_stalled(&self) -> bool {
-        self.stalled.load(std::sync::atomic::Ordering::Relaxed)
+        Aborter(self.shared.clone())
     }
 
     /// Whether the receiving body is gone (the client disconnected or the response was
     /// dropped): checked between tiles so that tracing stops even while no bytes flow.
     pub fn is_closed(&self) -> bool {
-        self.tx.is_closed()
+        self.shared.lock().map_or(true, |q| q.body_gone)
     }
 
-    /// Sends whatever is buffered now, e.g. after a band of rows is complete.
-    /// Blocks while the channel is full. Must not be called on a tokio thread.
-    pub fn send_pending(&self) -> io::Result<()> {
-        let mut p = self.pending.lock().map_err(|_| poisoned())?;
-        if p.is_empty() {
-            return Ok(());
+    /// Whether the client is behind: [`IN_FLIGHT_BYTES`] or more wait for it. A render
+    /// traces no further tile then, but parks until [`BodyWriter::room`].
+    pub fn is_backed_up(&self) -> bool {
+        self.shared.lock().is_ok_and(|q| {
+            q.queued + q.pending.len() >= IN_FLIGHT_BYTES || q.chunks.len() >= IN_FLIGHT_CHUNKS
+        })
+    }
+
+    /// Bytes waiting for the client now (queued chunks and the bytes not yet a chunk).
+    pub fn queued_bytes(&self) -> usize {
+        self.shared.lock().map_or(0, |q| q.queued + q.pending.len())
+    }
+
+    /// Waits until the client has taken enough that at most [`RESUME_BYTES`] wait for
+    /// it, or the body is gone, or the writer is aborted, or `stall` passes without the
+    /// client taking a single chunk. Runs on the runtime (never on a render thread).
+    pub async fn room(&self, stall: Duration) -> Room {
+        let mut abort = self.shared.abort.subscribe();
+        loop {
+            let notified = self.shared.room.notified();
+            let mut notified = std::pin::pin!(notified);
+            notified.as_mut().enable();
+            let taken = match self.shared.lock() {
+                Err(_) => return Room::Closed,
+                Ok(q) if q.body_gone => return Room::Closed,
+                Ok(q) if q.queued + q.pending.len() <= RESUME_BYTES => return Room::Ready,
+                Ok(q) => q.taken,
+            };
+            if *abort.borrow_and_update() {
+                return Room::Aborted;
+            }
+            // Each chunk the client takes starts the stall period again.
+            tokio::select! {
+                _ = notified => {}
+                _ = abort.wait_for(|a| *a) => return Room::Aborted,
+                _ = tokio::time::sleep(stall) => {
+                    let now = self.shared.lock().map_or(taken, |q| q.taken);
+                    if now == taken {
+                        return Room::Stalled;
+                    }
+                }
+            }
         }
-        // Send under the lock: a buffer taken here must not be overtaken by a later one.
-        let chunk = Bytes::from(std::mem::replace(&mut *p, Vec::with_capacity(CHUNK_BYTES)));
-        self.send(Item::Data(chunk))
+    }
+
+    /// Resolves once the writer is aborted.
+    pub async fn aborted(&self) {
+        let mut abort = self.shared.abort.subscribe();
+        let _ = abort.wait_for(|a| *a).await;
+    }
+
+    /// Hands over the bytes not yet a chunk if the client has nothing else to read, so
+    /// that the first rows leave early while a client that is behind gets full chunks.
+    pub fn send_pending(&self) -> io::Result<()> {
+        let mut q = self.shared.lock()?;
+        q.writable(&self.shared.abort)?;
+        if q.chunks.is_empty() {
+            q.push_pending();
+        }
+        Ok(())
     }
 
     /// Sends the rest and ends the body, with `trailers` if the client accepts them.
     pub fn finish(&self, trailers: Option<HeaderMap>) -> io::Result<()> {
-        self.send_pending()?;
-        self.send(Item::End(trailers))
+        {
+            let mut q = self.shared.lock()?;
+            q.writable(&self.shared.abort)?;
+            q.push_pending();
+        }
+        if self.shared.end(End::Trailers(trailers)) {
+            Ok(())
+        } else {
+            Err(ended())
+        }
     }
 
     /// Ends the body with an error: hyper aborts the response, so the client sees an
-    /// incomplete transfer rather than a short file that looks whole.
+    /// incomplete transfer rather than a short file that looks whole. What was queued
+    /// and not yet taken is thrown away.
     pub fn fail(&self, why: impl Into<String>) {
-        if let Ok(mut p) = self.pending.lock() {
-            p.clear();
+        if let Ok(mut q) = self.shared.lock() {
+            q.pending = Vec::new();
+            q.chunks.clear();
+            q.queued = 0;
         }
-        // Never waits: if the channel is full or closed, the body still ends in an
-        // error once the last writer is dropped without `finish`.
-        let _ = self.tx.try_send(Item::Fail(io::Error::other(why.into())));
+        self.shared.end(End::Fail(io::Error::other(why.into())));
     }
 }
 
 impl Write for BodyWriter {
-    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        if self.tx.is_closed() {
-            return Err(gone());
+    /// Takes all of `buf` at once, cut into chunks of at most [`CHUNK_BYTES`].
+    fn write(&mut self, mut buf: &[u8]) -> io::Result<usize> {
+        let n = buf.len();
+        let mut q = self.shared.lock()?;
+        q.writable(&self.shared.abort)?;
+        while !buf.is_empty() {
+            if q.pending.capacity() == 0 {
+                q.pending.reserve_exact(CHUNK_BYTES);
+            }
+            let take = (CHUNK_BYTES - q.pending.len()).min(buf.len());
+            q.pending.extend_from_slice(&buf[..take]);
+            buf = &buf[take..];
+            if q.pending.len() == CHUNK_BYTES {
+                q.push_pending();
+            }
         }
-        let full = {
-            let mut p = self.pending.lock().map_err(|_| poisoned())?;
-            p.extend_from_slice(buf);
-            p.len() >= CHUNK_BYTES
-        };
-        if full {
-            self.send_pending()?;
-        }
-        Ok(buf.len())
+        Ok(n)
     }
 
+    /// Hands over the bytes not yet a chunk, whatever the client has queued.
     fn flush(&mut self) -> io::Result<()> {
-        self.send_pending()
+        let mut q = self.shared.lock()?;
+        q.writable(&self.shared.abort)?;
+        q.push_pending();
+        Ok(())
     }
-}
-
-#[derive(Debug)]
-enum BodyState {
-    Open,
-    Done,
 }
 
 /// The receiving half: the response body hyper polls.
 #[derive(Debug)]
 pub struct StreamBody {
-    rx: mpsc::Receiver<Item>,
-    state: BodyState,
+    shared: Arc<Shared>,
+}
+
+impl Drop for StreamBody {
+    fn drop(&mut self) {
+        if let Ok(mut q) = self.shared.queue.lock() {
+            q.body_gone = true;
+            q.chunks.clear();
+            q.pending = Vec::new();
+            q.queued = 0;
+        }
+        self.shared.room.notify_one();
+    }
 }
 
 impl http_body::Body for StreamBody {
@@ -235,37 +371,42 @@ impl http_body::Body for StreamBody {
     type Error = io::Error;
 
     fn poll_frame(
-        mut self: Pin<&mut Self>,
+        self: Pin<&mut Self>,
         cx: &mut Context<'_>,
     ) -> Poll<Option<Result<Frame<Bytes>, io::Error>>> {
-        if matches!(self.state, BodyState::Done) {
+        let Ok(mut q) = self.shared.queue.lock() else {
+            return Poll::Ready(Some(Err(poisoned())));
+        };
+        if q.done {
             return Poll::Ready(None);
         }
-        let item = match self.rx.poll_recv(cx) {
-            Poll::Pending => return Poll::Pending,
-            Poll::Ready(item) => item,
-        };
-        Poll::Ready(match item {
-            Some(Item::Data(b)) => Some(Ok(Frame::data(b))),
-            Some(Item::End(trailers)) => {
-                self.state = BodyState::Done;
-                trailers.map(|t| Ok(Frame::trailers(t)))
-            }
-            Some(Item::Fail(e)) => {
-                self.state = BodyState::Done;
-                Some(Err(e))
-            }
+        let failed = matches!(q.end, Some(End::Fail(_)));
+        if !failed && let Some(chunk) = q.chunks.pop_front() {
+            q.queued -= chunk.len();
+            q.taken += 1;
+            drop(q);
+            // Wakes a parked render's wait (which checks whether enough room is free).
+            self.shared.room.notify_one();
+            return Poll::Ready(Some(Ok(Frame::data(chunk))));
+        }
+        match q.end.take() {
             None => {
-                self.state = BodyState::Done;
-                Some(Err(io::Error::other(
-                    "the render stopped without finishing",
-                )))
+                q.waker = Some(cx.waker().clone());
+                Poll::Pending
             }
-        })
+            Some(End::Trailers(t)) => {
+                q.done = true;
+                Poll::Ready(t.map(|t| Ok(Frame::trailers(t))))
+            }
+            Some(End::Fail(e)) => {
+                q.done = true;
+                Poll::Ready(Some(Err(e)))
+            }
+        }
     }
 
     fn is_end_stream(&self) -> bool {
-        matches!(self.state, BodyState::Done)
+        self.shared.queue.lock().map_or(true, |q| q.done)
     }
 
     fn size_hint(&self) -> SizeHint {
@@ -280,13 +421,14 @@ mod tests {
 
     fn runtime() -> tokio::runtime::Runtime {
         tokio::runtime::Builder::new_current_thread()
+            .enable_time()
             .build()
             .unwrap()
     }
 
     #[test]
     fn bytes_arrive_in_order_then_trailers() {
-        let (mut w, body) = channel(std::time::Duration::from_secs(15));
+        let (mut w, body) = channel();
         let writer = std::thread::spawn(move || {
             for i in 0..1000u32 {
                 w.write_all(&i.to_le_bytes()).unwrap();
@@ -309,9 +451,52 @@ mod tests {
         assert_eq!(bytes.as_ref(), expected.as_slice());
     }
 
+    /// Collects the body's data frames one by one.
+    fn frames(mut body: StreamBody) -> Vec<Bytes> {
+        runtime().block_on(async {
+            let mut out = Vec::new();
+            while let Some(f) = body.frame().await {
+                if let Ok(d) = f.unwrap().into_data() {
+                    out.push(d);
+                }
+            }
+            out
+        })
+    }
+
+    #[test]
+    fn no_chunk_is_larger_than_64_kib_whatever_the_writes() {
+        let (mut w, body) = channel();
+        // One huge write, many odd small ones, one just over a chunk, and flushes between.
+        let huge: Vec<u8> = (0..10 * CHUNK_BYTES + 12_345).map(|i| i as u8).collect();
+        let mut expected = Vec::new();
+        w.write_all(&huge).unwrap();
+        expected.extend_from_slice(&huge);
+        for k in 0..5000usize {
+            let piece = vec![(k % 251) as u8; k % 97 + 1];
+            w.write_all(&piece).unwrap();
+            expected.extend_from_slice(&piece);
+            if k % 700 == 0 {
+                w.flush().unwrap();
+            }
+        }
+        let over = vec![7u8; CHUNK_BYTES + 1];
+        w.write_all(&over).unwrap();
+        expected.extend_from_slice(&over);
+        w.finish(None).unwrap();
+        let chunks = frames(body);
+        assert!(
+            chunks
+                .iter()
+                .all(|c| !c.is_empty() && c.len() <= CHUNK_BYTES)
+        );
+        assert!(chunks.iter().filter(|c| c.len() == CHUNK_BYTES).count() >= 11);
+        assert_eq!(chunks.concat(), expected);
+    }
+
     #[test]
     fn a_writer_dropped_without_finishing_fails_the_body() {
-        let (mut w, body) = channel(std::time::Duration::from_secs(15));
+        let (mut w, body) = channel();
         std::thread::spawn(move || {
             w.write_all(b"half").unwrap();
             w.send_pending().unwrap();
@@ -322,27 +507,70 @@ mod tests {
     }
 
     #[test]
-    fn abort_ends_a_wait_for_a_client_that_does_not_read() {
-        let (mut w, _body) = channel(std::time::Duration::from_secs(15));
-        let aborter = w.aborter();
-        let writer = std::thread::spawn(move || {
-            let chunk = vec![0u8; CHUNK_BYTES];
-            loop {
-                if let Err(e) = w.write_all(&chunk) {
-                    return e.kind();
-                }
-            }
-        });
-        std::thread::sleep(std::time::Duration::from_millis(50));
-        aborter.abort();
-        assert_eq!(writer.join().unwrap(), io::ErrorKind::TimedOut);
-    }
-
-    #[test]
-    fn writing_to_a_dropped_body_fails() {
-        let (mut w, body) = channel(std::time::Duration::from_secs(15));
+    fn writes_never_wait_and_the_queue_says_when_it_is_backed_up() {
+        let (mut w, body) = channel();
+        let chunk = vec![0u8; CHUNK_BYTES];
+        for _ in 0..IN_FLIGHT_CHUNKS - 1 {
+            w.write_all(&chunk).unwrap();
+        }
+        assert!(!w.is_backed_up());
+        w.write_all(&chunk).unwrap();
+        assert!(w.is_backed_up());
+        // Nobody reads, and still a write more returns at once.
+        w.write_all(&chunk).unwrap();
+        assert_eq!(w.queued_bytes(), (IN_FLIGHT_CHUNKS + 1) * CHUNK_BYTES);
         drop(body);
         assert!(w.is_closed());
         assert_eq!(w.write(b"x").unwrap_err().kind(), io::ErrorKind::BrokenPipe);
+    }
+
+    #[test]
+    fn room_comes_when_the_client_reads_and_stalls_when_it_does_not() {
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_time()
+            .build()
+            .unwrap();
+        let (mut w, mut body) = channel();
+        let chunk = vec![1u8; CHUNK_BYTES];
+        for _ in 0..IN_FLIGHT_CHUNKS {
+            w.write_all(&chunk).unwrap();
+        }
+        rt.block_on(async {
+            let stall = Duration::from_millis(200);
+            assert_eq!(w.room(stall).await, Room::Stalled);
+            let waiter = {
+                let w = w.clone();
+                tokio::spawn(async move { w.room(Duration::from_secs(30)).await })
+            };
+            for _ in 0..=IN_FLIGHT_CHUNKS - RESUME_BYTES / CHUNK_BYTES {
+                tokio::time::sleep(Duration::from_millis(5)).await;
+                assert!(!waiter.is_finished() || w.queued_bytes() <= RESUME_BYTES);
+                body.frame().await.unwrap().unwrap();
+            }
+            assert_eq!(waiter.await.unwrap(), Room::Ready);
+            assert!(!w.is_backed_up());
+        });
+    }
+
+    #[test]
+    fn abort_ends_a_wait_for_room_and_fails_later_writes() {
+        let rt = runtime();
+        let (mut w, _body) = channel();
+        w.write_all(&vec![0u8; IN_FLIGHT_BYTES]).unwrap();
+        let aborter = w.aborter();
+        rt.block_on(async {
+            let wait = w.room(Duration::from_secs(30));
+            let abort = async {
+                tokio::time::sleep(Duration::from_millis(20)).await;
+                aborter.abort();
+                std::future::pending::<()>().await
+            };
+            tokio::select! {
+                r = wait => assert_eq!(r, Room::Aborted),
+                _ = abort => unreachable!(),
+            }
+        });
+        assert_eq!(w.write(b"x").unwrap_err().kind(), io::ErrorKind::TimedOut);
     }
 }

@@ -17,6 +17,8 @@
 //! - `openapi`: `api/openapi.yaml` and the server agree;
 //! - `server`: the HTTP service as a client sees it, and the binary's `serve` and
 //!   `healthcheck`;
+//! - `streaming`: streamed answers of any shape in small chunks, and clients that do
+//!   not read (parked renders, resumed or stopped);
 //! - `server_grade`: `POST /v1/trace` and `POST /v1/grade` as an instructor's scripts
 //!   use them;
 //! - `validation`: every class of bad document, with its pointer.
@@ -37,4 +39,5 @@ mod properties;
 mod schema;
 mod server;
 mod server_grade;
+mod streaming;
 mod validation;
