@@ -68,6 +68,9 @@ pub struct Report {
     pub hits: Option<HitCounts>,
     /// The worst pixels, worst first: failing ones, then those that differ but pass.
     pub worst: Vec<WorstPixel>,
+    /// The mistakes that explain a failing submission (`docs/grading.md`, Diagnosis).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub diagnosis: Option<super::diagnose::Diagnosis>,
     /// The difference image as a base64 PNG, when asked for.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub diff_png_base64: Option<String>,
@@ -144,6 +147,7 @@ impl Report {
             image,
             hits: cmp.hits,
             worst: cmp.worst,
+            diagnosis: None,
             diff_png_base64: None,
             diff: cmp.diff,
         };
@@ -275,6 +279,7 @@ pub fn to_text(r: &Report) -> String {
             );
         }
     }
+    o.push_str(&super::diagnose::text(r.diagnosis.as_ref()));
     if !r.worst.is_empty() {
         let _ = writeln!(o, "Worst pixels (u, v):");
         o.push_str(&worst_text(r, r.worst.len()));
@@ -321,7 +326,7 @@ pub fn to_gradescope(r: &Report, max_score: f64) -> Value {
         "score": score,
         "max_score": max_score,
         "status": status(r.pass),
-        "output": format!("{}\n{}", r.summary, worst_text(r, r.worst.len())),
+        "output": format!("{}{}\n{}", r.summary, super::diagnose::message_suffix(r.diagnosis.as_ref()), worst_text(r, r.worst.len())),
         "visibility": "visible",
     })];
     if r.kind == "hits" {
@@ -367,10 +372,15 @@ pub fn to_prairielearn(r: &Report) -> Value {
             "output": output,
         }));
     }
+    let summary = format!(
+        "{}{}",
+        r.summary,
+        super::diagnose::message_suffix(r.diagnosis.as_ref())
+    );
     let mut doc = json!({
         "gradable": true,
         "score": score,
-        "message": r.summary,
+        "message": summary,
         "output": to_text(r),
         "tests": tests,
         "images": [],
@@ -425,7 +435,7 @@ pub fn to_prairielearn(r: &Report) -> Value {
         img = img.halve(super::compare::FAIL_RGB);
     }
     if !notes.is_empty() {
-        doc["message"] = Value::String(format!("{} {}", r.summary, notes.join(" ")));
+        doc["message"] = Value::String(format!("{summary} {}", notes.join(" ")));
     }
     doc
 }

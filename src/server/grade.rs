@@ -514,6 +514,10 @@ async fn grade(
         worst: query.worst.unwrap_or(defaults.worst),
         inline_diff: query.inline_diff.unwrap_or(defaults.inline_diff),
         flip: query.flip.unwrap_or(defaults.flip),
+        diagnosis: grade::diagnose::Settings {
+            max_pixels: app.config.diagnosis_max_pixels,
+            ..defaults.diagnosis
+        },
         ..defaults
     };
     let max_score = query.max_score.unwrap_or(1.0);
