@@ -124,6 +124,18 @@ fn named(report: &Value) -> Vec<String> {
 
 /// Every case's verdict, gathered before asserting so that one run shows them all.
 fn check_all(cases: Vec<(&str, Value)>) {
+    // The diagnoses as a student reads them, shown with `--no-capture`.
+    for (want, r) in &cases {
+        let d = &r["diagnosis"];
+        for m in d["mistakes"].as_array().into_iter().flatten() {
+            eprintln!(
+                "{want}: {} — matches {:.2} % of pixels, the reference {:.2} %.",
+                m["title"].as_str().unwrap_or("?"),
+                100.0 * m["matches"].as_f64().unwrap_or(f64::NAN),
+                100.0 * d["reference_matches"].as_f64().unwrap_or(f64::NAN)
+            );
+        }
+    }
     let wrong: Vec<String> = cases
         .iter()
         .filter(|(want, r)| named(r) != [*want])

@@ -66,7 +66,7 @@ pub const MIN_BUDGET: Duration = Duration::from_secs(2);
 pub struct Settings {
     /// Whether failing submissions are diagnosed at all (default true).
     pub enabled: bool,
-    /// Larger frames are not diagnosed (the report says so); default
+    /// Larger frames are not diagnosed (the report says so); 0 diagnoses none. Default
     /// [`DEFAULT_MAX_PIXELS`].
     pub max_pixels: u64,
     /// Diagnosis spends at most this many times the reference's render time (default
@@ -371,7 +371,7 @@ fn make(
 }
 
 /// The diagnosis a report carries: `None` for a passing submission or when diagnosis is
-/// off, else [`diagnose`] against the reference it failed against.
+/// off (or its pixel limit is 0), else [`diagnose`] against the reference it failed against.
 pub fn for_report(
     r: &Renderer,
     report: &super::Report,
@@ -379,7 +379,7 @@ pub fn for_report(
     tol: &Tolerances,
     ctx: &Context,
 ) -> Option<Diagnosis> {
-    (!report.pass && ctx.settings.enabled)
+    (!report.pass && ctx.settings.enabled && ctx.settings.max_pixels > 0)
         .then(|| diagnose(r, against, tol, report.failing_pixels, ctx))
 }
 
