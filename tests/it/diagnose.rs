@@ -673,6 +673,9 @@ async fn post_grade_carries_the_diagnosis() {
         .await
         .expect("the server answers");
     assert_eq!(res.status(), 200);
-    let r: Value = res.json().await.unwrap();
+    let answer = crate::openapi::Answer::from_reqwest(res).await;
+    // The failing report, diagnosis included, is the documented GradeReport.
+    crate::openapi::check(&crate::openapi::document(), "post", "/v1/grade", &answer);
+    let r: Value = serde_json::from_slice(&answer.body).unwrap();
     assert_eq!(named(&r), ["flipped_vertically"], "{r}");
 }
