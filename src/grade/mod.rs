@@ -24,6 +24,7 @@ pub mod compare;
 pub mod diagnose;
 pub mod explain;
 pub mod image;
+pub mod legend;
 pub mod metrics;
 pub mod report;
 pub mod submission;

@@ -1,11 +1,12 @@
 //! How a diagnosis is written in each form of the report (text, the Gradescope and
 //! PrairieLearn messages; the JSON is its `Serialize`), the likely cause of an image of
-//! the wrong size, and the colours of the hit-data difference image.
+//! the wrong size, and the legend of the hit-data difference image.
 
 use std::fmt::Write as _;
 
 use super::Diagnosis;
 use crate::grade::compare::FAIL_RGB;
+use crate::grade::legend::{LAMBDA_RGB, NORMAL_RGB, OBJECT_RGB};
 
 fn percent(share: f64) -> String {
     let p = 100.0 * share;
@@ -127,43 +128,15 @@ pub fn size_note(width: &u32, height: &u32, ew: &u32, eh: &u32) -> String {
     size_cause(*width, *height, *ew, *eh).map_or(String::new(), |c| format!("; likely cause: {c}"))
 }
 
-/// The hit-data difference image's colour of a pixel whose object differs.
-pub const OBJECT_RGB: [u8; 3] = [255, 200, 0];
-/// … whose `λ` is out of tolerance (and nothing above).
-pub const LAMBDA_RGB: [u8; 3] = [255, 64, 0];
-/// … whose normal alone is out of tolerance.
-pub const NORMAL_RGB: [u8; 3] = [0, 200, 255];
-
 /// The hit-data difference image's legend: each kind of disagreement and its colour, in
-/// the order of precedence (a pixel shows the first it fails).
+/// the order of precedence (a pixel shows the first it fails; see
+/// [`hit_diff_colour`](crate::grade::legend::hit_diff_colour)).
 pub const HIT_DIFF_LEGEND: [(&str, [u8; 3]); 4] = [
     ("hit where the reference misses, or the reverse", FAIL_RGB),
     ("another object", OBJECT_RGB),
     ("λ out of tolerance", LAMBDA_RGB),
     ("normal out of tolerance", NORMAL_RGB),
 ];
-
-/// A hit-data pixel's colour in the difference image: `passing` (the dimmed reference)
-/// when it passes, else the colour of the first check it fails.
-pub fn hit_diff_colour(
-    pass: bool,
-    hit_miss: bool,
-    object: bool,
-    lambda: bool,
-    passing: [u8; 3],
-) -> [u8; 3] {
-    if pass {
-        passing
-    } else if hit_miss {
-        FAIL_RGB
-    } else if object {
-        OBJECT_RGB
-    } else if lambda {
-        LAMBDA_RGB
-    } else {
-        NORMAL_RGB
-    }
-}
 
 #[cfg(test)]
 mod tests {
@@ -189,16 +162,7 @@ mod tests {
     }
 
     #[test]
-    fn hit_colours_follow_precedence() {
-        let base = [1, 2, 3];
-        assert_eq!(hit_diff_colour(true, true, true, true, base), base);
-        assert_eq!(hit_diff_colour(false, true, true, true, base), FAIL_RGB);
-        assert_eq!(hit_diff_colour(false, false, true, true, base), OBJECT_RGB);
-        assert_eq!(hit_diff_colour(false, false, false, true, base), LAMBDA_RGB);
-        assert_eq!(
-            hit_diff_colour(false, false, false, false, base),
-            NORMAL_RGB
-        );
+    fn the_legend_has_one_colour_per_kind() {
         let colours: Vec<_> = HIT_DIFF_LEGEND.iter().map(|l| l.1).collect();
         for (i, a) in colours.iter().enumerate() {
             assert!(colours[i + 1..].iter().all(|b| b != a));

@@ -34,12 +34,10 @@ use serde::{Deserialize, Serialize};
 
 use catalogue::Making;
 pub use catalogue::Mistake;
-pub use forms::{
-    HIT_DIFF_LEGEND, LAMBDA_RGB, NORMAL_RGB, OBJECT_RGB, hit_diff_colour, message_suffix,
-    size_cause, size_note, text,
-};
+pub use forms::{HIT_DIFF_LEGEND, message_suffix, size_cause, size_note, text};
 
 use super::compare::{self, FAIL_RGB};
+use super::legend::{LAMBDA_RGB, NORMAL_RGB, OBJECT_RGB};
 use super::submission::SubmittedHit;
 use super::{GradeError, RgbImage, Tolerances};
 use crate::geometry::Surface;
