@@ -19,6 +19,10 @@
 //! diagnosed (only failing ones are), and an image that is simply different matches no
 //! entry.
 //!
+//! An entry that explains all but [`CONCLUSIVE_MATCH`] (0.1 %) of the pixels, and at most
+//! [`CONCLUSIVE_LEFT`] (1 %) of the reference's failures, ends the search (the entries
+//! are tried cheapest first).
+//!
 //! The cost is bounded: diagnosis runs only for a failing submission of at most
 //! [`Settings::max_pixels`] pixels, and spends at most [`Settings::time_factor`] times
 //! the reference's render time (or [`Settings::min_budget`], whichever is longer); entries that
@@ -48,6 +52,13 @@ pub const MATCH_AT_LEAST: f64 = 0.99;
 
 /// A named mistake leaves at most this share of the reference's failing pixels failing.
 pub const FAILURES_LEFT_AT_MOST: f64 = 0.1;
+
+/// An entry that matches at least this share of the pixels …
+pub const CONCLUSIVE_MATCH: f64 = 0.999;
+
+/// … and leaves at most this share of the reference's failing pixels failing ends the
+/// diagnosis: no later entry can explain the submission clearly better.
+pub const CONCLUSIVE_LEFT: f64 = 0.01;
 
 /// The default of [`Settings::max_pixels`]: 4 megapixels (a 2560 × 1600 frame).
 pub const DEFAULT_MAX_PIXELS: u64 = 4_000_000;
@@ -265,6 +276,11 @@ pub fn diagnose(
         let mask = failing_mask(&against, &wrong, r, tol);
         let failing = mask.iter().filter(|f| **f).count() as u64;
         tried.push((mistake, failing));
+        if failing as f64 <= (1.0 - CONCLUSIVE_MATCH) * pixels as f64
+            && failing as f64 <= CONCLUSIVE_LEFT * reference_failing as f64
+        {
+            break;
+        }
     }
     if !skipped.is_empty() {
         d.notes.push(format!(
@@ -444,16 +460,13 @@ mod tests {
             },
             ..GradeOptions::default()
         };
-        let rep = grade(
-            &r,
-            Submission::Image(flipped(&r)),
-            &Tolerances::default(),
-            &opts,
-        )
-        .unwrap();
+        // Flipped and in BGR order: no entry explains it, so every entry is wanted.
+        let sub = wrong::bgr(&flipped(&r));
+        let rep = grade(&r, Submission::Image(sub), &Tolerances::default(), &opts).unwrap();
         let d = rep.diagnosis.as_ref().unwrap();
-        // Moving pixels costs no render: the flip is still found.
-        assert_eq!(d.mistakes[0].mistake, Mistake::FlippedVertically);
+        assert!(d.mistakes.is_empty());
+        // Moving and recolouring pixels costs no render: those are still tried.
+        assert_eq!(d.tried.len(), 3);
         assert!(
             d.tried
                 .iter()
@@ -466,5 +479,32 @@ mod tests {
             "{:?}",
             d.notes
         );
+    }
+
+    #[test]
+    fn an_entry_that_explains_all_ends_the_search() {
+        let r = showcase(40, 30);
+        let opts = GradeOptions::default();
+        let rep = grade(
+            &r,
+            Submission::Image(flipped(&r)),
+            &Tolerances::default(),
+            &opts,
+        )
+        .unwrap();
+        let d = rep.diagnosis.as_ref().unwrap();
+        assert_eq!(d.mistakes[0].mistake, Mistake::FlippedVertically);
+        assert_eq!(d.tried.len(), 1);
+        assert!(d.notes.is_empty());
+        // Blue and red exchanged as well: the flip alone no longer explains it, and every
+        // entry is tried.
+        let rep = grade(
+            &r,
+            Submission::Image(wrong::bgr(&flipped(&r))),
+            &Tolerances::default(),
+            &opts,
+        )
+        .unwrap();
+        assert!(rep.diagnosis.as_ref().unwrap().tried.len() > 10);
     }
 }
