@@ -679,3 +679,44 @@ async fn post_grade_carries_the_diagnosis() {
     let r: Value = serde_json::from_slice(&answer.body).unwrap();
     assert_eq!(named(&r), ["flipped_vertically"], "{r}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_server_diagnoses_frames_up_to_its_setting() {
+    let dir = tempfile::tempdir().unwrap();
+    let (scene, _, png) = flipped_submission(&dir);
+    let scene = std::fs::read(&scene).unwrap();
+    let diagnosis = |max: u64| {
+        let (scene, png) = (scene.clone(), png.clone());
+        async move {
+            let app = TestApp::with(raytile::config::ServeArgs {
+                diagnosis_max_pixels: max,
+                ..crate::support_server::config()
+            })
+            .await;
+            let form = Form::new()
+                .part("scene", Part::bytes(scene).file_name("scene.json"))
+                .part("submission", Part::bytes(png).file_name("s.png"));
+            let r: Value = app
+                .client
+                .post(app.at("/v1/grade"))
+                .multipart(form)
+                .send()
+                .await
+                .expect("the server answers")
+                .json()
+                .await
+                .unwrap();
+            assert_eq!(r["pass"], false);
+            r.get("diagnosis").cloned()
+        }
+    };
+    assert_eq!(diagnosis(0).await, None);
+    let over = diagnosis(96 * 72 - 1).await.expect("a diagnosis");
+    assert_eq!(over["mistakes"], json!([]));
+    assert_eq!(
+        over["notes"][0],
+        "No diagnosis: the image has 6912 pixels, more than the 6911 this grader diagnoses."
+    );
+    let at = diagnosis(96 * 72).await.expect("a diagnosis");
+    assert_eq!(named(&json!({ "diagnosis": at })), ["flipped_vertically"]);
+}
