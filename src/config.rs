@@ -118,6 +118,10 @@ pub struct ServeArgs {
     /// Log format: `text` for people, `json` for log collectors.
     #[arg(long, env = "RAYTILE_LOG_FORMAT", default_value = "text", value_parser = ["text", "json"])]
     pub log_format: String,
+
+    /// Largest frame, in pixels, whose failing submissions are diagnosed (0: never).
+    #[arg(long, env = "RAYTILE_DIAGNOSIS_MAX_PIXELS", default_value_t = crate::grade::diagnose::DEFAULT_MAX_PIXELS)]
+    pub diagnosis_max_pixels: u64,
 }
 
 impl Default for ServeArgs {
@@ -146,6 +150,7 @@ impl Default for ServeArgs {
             idle_timeout_seconds: DEFAULT_IDLE_TIMEOUT_SECONDS,
             tile: DEFAULT_TILE_PX,
             log_format: "text".into(),
+            diagnosis_max_pixels: crate::grade::diagnose::DEFAULT_MAX_PIXELS,
         }
     }
 }

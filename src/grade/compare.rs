@@ -452,11 +452,14 @@ pub fn hits(
             } else if !direct {
                 forgiven += 1;
             }
-            diff.data.extend_from_slice(&if pass {
-                dim(normal_picture(r))
-            } else {
-                FAIL_RGB
-            });
+            diff.data.extend_from_slice(&super::legend::hit_diff_colour(
+                pass,
+                c.hit_miss,
+                c.object,
+                c.lambda,
+                dim(normal_picture(r)),
+                FAIL_RGB,
+            ));
             let differs = c.hit_miss
                 || c.object
                 || c.lambda_rel.is_some_and(|x| x != 0.0)

@@ -21,8 +21,10 @@
 
 pub mod answer;
 pub mod compare;
+pub mod diagnose;
 pub mod explain;
 pub mod image;
+pub mod legend;
 pub mod metrics;
 pub mod report;
 pub mod score;
@@ -149,6 +151,9 @@ pub struct GradeOptions {
     /// Stops rendering the reference (a deadline, a client that left).
     #[serde(skip)]
     pub cancel: Cancel,
+    /// What diagnosing a failing submission may cost.
+    #[serde(skip)]
+    pub diagnosis: diagnose::Settings,
 }
 
 impl Default for GradeOptions {
@@ -159,6 +164,7 @@ impl Default for GradeOptions {
             flip: true,
             scoring: Scoring::default(),
             cancel: Cancel::new(),
+            diagnosis: diagnose::Settings::default(),
         }
     }
 }
@@ -180,7 +186,8 @@ pub enum GradeError {
     NotPng,
     /// The image or hit data is not the scene's size.
     #[error(
-        "the submission is {width} × {height} pixels but the scene renders {expected_width} × {expected_height}"
+        "the submission is {width} × {height} pixels but the scene renders {expected_width} × {expected_height}{}",
+        diagnose::size_note(.width, .height, .expected_width, .expected_height)
     )]
     SizeMismatch {
         /// Submitted width.
@@ -410,21 +417,48 @@ pub fn grade(
                     expected_height: h,
                 });
             }
+            let started = std::time::Instant::now();
             let reference = reference_image(r, &opts.cancel)?;
+            let ctx = diagnose_context(opts, started.elapsed());
             let cmp = compare::images(&reference, &img, tol, opts.worst);
             let image = report::ImageMetrics {
                 errors: metrics::error_stats(&reference, &img),
                 ssim: metrics::ssim(&reference, &img),
                 flip: opts.flip.then(|| metrics::flip(&reference, &img)),
             };
-            Ok(Report::new(png::NAME, w, h, tol, opts, cmp, Some(image)))
+            let mut report = Report::new(png::NAME, w, h, tol, opts, cmp, Some(image));
+            let against = diagnose::Against::Image {
+                reference: &reference,
+                submitted: &img,
+            };
+            report.diagnosis = diagnose::for_report(r, &report, against, tol, &ctx);
+            Ok(report)
         }
         Submission::Hits(data) => {
             let placed = data.place(w, h)?;
+            let started = std::time::Instant::now();
             let reference = reference_hits(r, &opts.cancel)?;
+            let ctx = diagnose_context(opts, started.elapsed());
             let cmp = compare::hits(&reference, &placed, w, h, tol, opts.worst);
-            Ok(Report::new(data.format, w, h, tol, opts, cmp, None))
+            let mut report = Report::new(data.format, w, h, tol, opts, cmp, None);
+            let against = diagnose::Against::Hits {
+                reference: &reference,
+                submitted: &placed,
+            };
+            report.diagnosis = diagnose::for_report(r, &report, against, tol, &ctx);
+            Ok(report)
         }
+    }
+}
+
+fn diagnose_context(
+    opts: &GradeOptions,
+    reference_time: std::time::Duration,
+) -> diagnose::Context<'_> {
+    diagnose::Context {
+        settings: opts.diagnosis,
+        cancel: &opts.cancel,
+        reference_time,
     }
 }
 

@@ -72,6 +72,9 @@ pub struct Report {
     pub hits: Option<HitCounts>,
     /// The worst pixels, worst first: failing ones, then those that differ but pass.
     pub worst: Vec<WorstPixel>,
+    /// The mistakes that explain a failing submission (`docs/grading.md`, Diagnosis).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub diagnosis: Option<super::diagnose::Diagnosis>,
     /// The difference image as a base64 PNG, when asked for.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub diff_png_base64: Option<String>,
@@ -160,6 +163,7 @@ impl Report {
             image,
             hits: cmp.hits,
             worst: cmp.worst,
+            diagnosis: None,
             diff_png_base64: None,
             diff: cmp.diff,
         };
@@ -255,6 +259,7 @@ pub fn to_text(r: &Report) -> String {
         score_text,
         image_text,
         hits_text,
+        diagnosis_text,
         worst_section_text,
     ] {
         section(r, &mut o);
@@ -330,6 +335,10 @@ fn hits_text(r: &Report, o: &mut String) {
             "Where both hit: largest λ relative error {l:.3e}, largest normal angle {a:.4}°"
         );
     }
+}
+
+fn diagnosis_text(r: &Report, o: &mut String) {
+    o.push_str(&super::diagnose::text(r.diagnosis.as_ref()));
 }
 
 fn worst_section_text(r: &Report, o: &mut String) {
@@ -444,8 +453,9 @@ fn checks(r: &Report) -> Vec<(String, bool, String)> {
 fn lms_tests(r: &Report, worst_shown: usize) -> Vec<LmsTest> {
     let verdict_output = || {
         format!(
-            "{}\n{}",
+            "{}{}\n{}",
             r.summary,
+            super::diagnose::message_suffix(r.diagnosis.as_ref()),
             worst_text_limited(r, worst_shown).trim_end()
         )
     };
@@ -651,10 +661,15 @@ pub fn to_prairielearn(r: &Report) -> Value {
             })
             .collect()
     };
+    let summary = format!(
+        "{}{}",
+        r.summary,
+        super::diagnose::message_suffix(r.diagnosis.as_ref())
+    );
     let mut doc = json!({
         "gradable": true,
         "score": r.score.value,
-        "message": r.summary,
+        "message": summary,
         "output": to_text(r),
         "tests": tests_json(r.worst.len()),
         "images": [],
@@ -679,7 +694,7 @@ pub fn to_prairielearn(r: &Report) -> Value {
         doc["images"] = json!([{ "label": label, "url": url }]);
     }
     if !notes.is_empty() {
-        doc["message"] = Value::String(format!("{} {}", r.summary, notes.join(" ")));
+        doc["message"] = Value::String(format!("{summary} {}", notes.join(" ")));
     }
     doc
 }

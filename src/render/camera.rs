@@ -4,6 +4,7 @@
 
 use glam::{DAffine3, DVec3};
 
+use super::shade::{Conventions, Lecture};
 use crate::geometry::Ray;
 use crate::scene::Scene;
 
@@ -60,7 +61,24 @@ impl PrimaryRays {
     /// The world-space ray through the centre of pixel `(u, v)`.
     #[inline]
     pub fn pixel_centre(&self, u: u32, v: u32) -> Ray {
-        self.through(u as f64 + 0.5, v as f64 + 0.5)
+        self.pixel_ray::<Lecture>(u, v)
+    }
+
+    /// The world-space ray of pixel `(u, v)` under conventions `C`: through its centre,
+    /// or through its corner for a tracer that forgets the `+ ½`.
+    #[inline]
+    pub fn pixel_ray<C: Conventions>(&self, u: u32, v: u32) -> Ray {
+        self.through(u as f64 + C::PIXEL_OFFSET, v as f64 + C::PIXEL_OFFSET)
+    }
+
+    /// The world-space ray of sample `(i, j)` of pixel `(u, v)`, the pixel cut into
+    /// `s × s` cells, under conventions `C`: through the cell's centre in the lecture's.
+    #[inline]
+    pub fn sample_ray<C: Conventions>(&self, u: u32, v: u32, i: u32, j: u32, s: u32) -> Ray {
+        let sf = s as f64;
+        let x = u as f64 + (i as f64 + C::PIXEL_OFFSET) / sf;
+        let y = v as f64 + (j as f64 + C::PIXEL_OFFSET) / sf;
+        self.through(x, y)
     }
 
     /// The world-space origin every primary ray shares.

@@ -17,7 +17,7 @@ use crate::scene::Scene;
 pub use camera::PrimaryRays;
 pub use cost::{CostError, Estimate, RayBudget, TooCostly, Work};
 pub use rect::{OutsideFrame, ParseRectError, Rect, region_in_frame};
-pub use shade::{RayCount, Shader, quantise};
+pub use shade::{Conventions, Lecture, RayCount, Shader, quantise};
 pub use tiles::{
     BAND_PIXELS, Cancel, DEFAULT_TILE_PX, Kernel, RenderStats, Scheduler, SinkClosed, Step,
     Stopped, Tile, TileCursor, TileShape, TileSink, run, trace_tile,
@@ -53,20 +53,28 @@ impl Renderer {
     }
 
     /// The linear colour of pixel `(u, v)`: the mean of its `s × s` samples.
+    #[inline]
     pub fn pixel_colour(&self, u: u32, v: u32, rays: &mut RayCount) -> DVec3 {
+        self.pixel_colour_as::<Lecture>(u, v, rays)
+    }
+
+    /// [`Renderer::pixel_colour`] traced under conventions `C`.
+    pub fn pixel_colour_as<C: Conventions>(&self, u: u32, v: u32, rays: &mut RayCount) -> DVec3 {
         let shader = Shader {
             scene: &self.scene,
             world: &self.world,
         };
         let s = self.scene.samples;
         if s == 1 {
-            return shader.trace(&self.camera.pixel_centre(u, v), 0, PRIMARY_LAMBDA_MIN, rays);
+            let ray = self.camera.pixel_ray::<C>(u, v);
+            return shader.trace_as::<(), C>(&ray, 0, PRIMARY_LAMBDA_MIN, rays, &mut ());
         }
         let sf = s as f64;
         let mut sum = DVec3::ZERO;
         for j in 0..s {
             for i in 0..s {
-                sum += shader.trace(&self.sample_ray(u, v, i, j), 0, PRIMARY_LAMBDA_MIN, rays);
+                let ray = self.camera.sample_ray::<C>(u, v, i, j, s);
+                sum += shader.trace_as::<(), C>(&ray, 0, PRIMARY_LAMBDA_MIN, rays, &mut ());
             }
         }
         sum / (sf * sf)
@@ -76,19 +84,23 @@ impl Renderer {
     /// of the pixel cut into `samples × samples` cells.
     #[inline]
     pub fn sample_ray(&self, u: u32, v: u32, i: u32, j: u32) -> Ray {
-        let sf = self.scene.samples as f64;
-        let x = u as f64 + (i as f64 + 0.5) / sf;
-        let y = v as f64 + (j as f64 + 0.5) / sf;
-        self.camera.through(x, y)
+        self.camera
+            .sample_ray::<Lecture>(u, v, i, j, self.scene.samples)
     }
 
     /// The first hit of pixel `(u, v)`'s centre ray.
     #[inline]
     pub fn pixel_hit(&self, u: u32, v: u32) -> Option<Surface> {
-        let ray = self.camera.pixel_centre(u, v);
+        self.pixel_hit_as::<Lecture>(u, v)
+    }
+
+    /// [`Renderer::pixel_hit`] under conventions `C` (its primary ray only).
+    #[inline]
+    pub fn pixel_hit_as<C: Conventions>(&self, u: u32, v: u32) -> Option<Surface> {
+        let ray = self.camera.pixel_ray::<C>(u, v);
         self.world
             .closest(&ray, PRIMARY_LAMBDA_MIN, f64::INFINITY)
-            .map(|h| self.world.surface(&ray, &h))
+            .map(|h| shade::conventional_hit::<C>(&self.world, &ray, self.world.surface(&ray, &h)))
     }
 }
 

@@ -14,7 +14,9 @@
 //! The recursion is written once, in [`Shader::trace_probed`], generic over a
 //! [`ShadingProbe`] as the shape tests are over [`Probe`](crate::geometry::Probe): the
 //! renderer's `()` compiles to the bare tracer, and explaining a pixel passes a recorder
-//! that sees every value the tracer computes.
+//! that sees every value the tracer computes. It is generic over [`Conventions`] too: the
+//! renderer's [`Lecture`] is the specification, and diagnosing a submission renders the
+//! classic mistakes of the course with other instantiations (`crate::grade::diagnose`).
 
 use glam::DVec3;
 
@@ -29,6 +31,92 @@ pub const SECONDARY_LAMBDA_MIN: f64 = 1e-9;
 #[inline]
 pub fn surface_offset(p: DVec3) -> f64 {
     1e-9 * p.abs().max_element().max(1.0)
+}
+
+/// How a tracer follows the course's conventions: [`Lecture`] follows them all, and each
+/// classic mistake that diagnosis renders breaks one. Every choice is an associated
+/// constant, so each instantiation is compiled on its own and in the lecture's every test
+/// of a constant folds away: the renderer's code is the tracer without the switches.
+pub trait Conventions: Sync {
+    /// What is added to a pixel's (or a sample cell's) index to reach the image point its
+    /// ray passes through: ½, the centre (`docs/spec/camera.md`, The primary ray).
+    const PIXEL_OFFSET: f64 = 0.5;
+    /// Whether shadow rays are traced (`shading.md`, Shadows); when not, nothing blocks.
+    const SHADOWS: bool = true;
+    /// The recursion depths (bit `k` for depth `k`) at which every light is blocked
+    /// wherever it would add something: what a shadow ray from the surface itself, not
+    /// moved off it, meets at a part of the lit points chosen by rounding (shadow acne,
+    /// `shading.md`, Secondary rays).
+    const SELF_SHADOWED_DEPTHS: u32 = 0;
+    /// Whether the ambient term is added.
+    const AMBIENT: bool = true;
+    /// Whether the specular term is added.
+    const SPECULAR: bool = true;
+    /// Whether the specular term is Blinn–Phong's `(n·h)^shininess` instead of Phong's.
+    const BLINN_PHONG: bool = false;
+    /// Whether mirror rays are traced.
+    const REFLECTION: bool = true;
+    /// Whether refracted rays are traced.
+    const REFRACTION: bool = true;
+    /// Whether Snell's ratio is inverted (`ior` entering, `1/ior` leaving).
+    const INVERTED_ETA: bool = false;
+    /// Added to `max_depth` where the recursion stops.
+    const EXTRA_DEPTH: i64 = 0;
+    /// Whether the world normal is carried by `(T⁻¹)ᵀ` (else by `T` itself).
+    const INVERSE_TRANSPOSE: bool = true;
+    /// Whether the world normal is normalised after it is carried.
+    const NORMALISED: bool = true;
+    /// Whether hit data gives `λ` along the normalised direction `d/|d|` (a distance)
+    /// instead of along `d` (`docs/spec/camera.md`, The primary ray).
+    const UNIT_DIRECTION_LAMBDA: bool = false;
+}
+
+/// The course's conventions, as the specification writes them: what the renderer uses.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Lecture;
+
+impl Conventions for Lecture {}
+
+/// The hit's normal as a tracer of conventions `C` computes it: the world normal carried
+/// by `T` instead of `(T⁻¹)ᵀ`, or not normalised. `n_world ∝ (T⁻¹)ᵀ n_object` gives
+/// `n_object ∝ Tᵀ n_world`, so the object's normal is recovered from the surface record
+/// and nothing in the geometry's hot path changes.
+#[inline(always)]
+pub fn conventional_surface<C: Conventions>(world: &World, s: Surface) -> Surface {
+    if C::INVERSE_TRANSPOSE && C::NORMALISED {
+        return s;
+    }
+    let t = world.transform(s.object);
+    let m = t.forward.matrix3;
+    let n_object = m.transpose().mul_vec3(s.normal).normalize();
+    let carried = if C::INVERSE_TRANSPOSE {
+        t.inverse.matrix3.transpose().mul_vec3(n_object)
+    } else {
+        m.mul_vec3(n_object)
+    };
+    Surface {
+        normal: if C::NORMALISED {
+            carried.normalize()
+        } else {
+            carried
+        },
+        ..s
+    }
+}
+
+/// A primary ray's hit as hit data written under conventions `C` gives it: its normal as
+/// [`conventional_surface`] makes it, `λ` along `d/|d|` where `C` measures it so.
+#[inline(always)]
+pub fn conventional_hit<C: Conventions>(world: &World, ray: &Ray, s: Surface) -> Surface {
+    let s = conventional_surface::<C>(world, s);
+    if C::UNIT_DIRECTION_LAMBDA {
+        Surface {
+            lambda: s.lambda * ray.dir.length(),
+            ..s
+        }
+    } else {
+        s
+    }
 }
 
 /// Counts the rays a pixel costs (primary and secondary).
@@ -103,6 +191,18 @@ pub fn unshadowed_light_term(
     dir: DVec3,
     m: &Material,
 ) -> LightTerm {
+    light_term_as::<Lecture>(light, s, n, dir, m)
+}
+
+/// [`unshadowed_light_term`] under conventions `C`.
+#[inline(always)]
+pub fn light_term_as<C: Conventions>(
+    light: &Light,
+    s: &Surface,
+    n: DVec3,
+    dir: DVec3,
+    m: &Material,
+) -> LightTerm {
     let origin = s.point + n * surface_offset(s.point);
     let (to_light, t_max, colour, outside) = match *light {
         Light::Point { position, colour } => (position - origin, 1.0, colour, false),
@@ -141,8 +241,13 @@ pub fn unshadowed_light_term(
     term.r_dot_v = r_dot_v;
     term.diffuse = colour * m.diffuse * n_dot_l.max(0.0);
     // `pow` is the costliest step of shading; a black specular needs none.
-    if m.specular != DVec3::ZERO {
-        term.specular = colour * m.specular * r_dot_v.max(0.0).powf(m.shininess);
+    if C::SPECULAR && m.specular != DVec3::ZERO {
+        let cosine = if C::BLINN_PHONG {
+            n.dot((l + v).normalize())
+        } else {
+            r_dot_v
+        };
+        term.specular = colour * m.specular * cosine.max(0.0).powf(m.shininess);
     }
     term
 }
@@ -152,13 +257,23 @@ pub fn unshadowed_light_term(
 // Always inlined, as `unshadowed_light_term` is.
 #[inline(always)]
 pub fn bounce(s: &Surface, n: DVec3, dir: DVec3, ior: f64) -> Bounce {
+    bounce_as::<Lecture>(s, n, dir, ior)
+}
+
+/// [`bounce`] under conventions `C`.
+#[inline(always)]
+pub fn bounce_as<C: Conventions>(s: &Surface, n: DVec3, dir: DVec3, ior: f64) -> Bounce {
     let i = dir.normalize();
     let off = surface_offset(s.point);
     let outside = s.point + n * off;
     let inside = s.point - n * off;
     let cos_i = -n.dot(i);
     let reflected = Ray::new(outside, i + 2.0 * cos_i * n);
-    let eta = if s.front { 1.0 / ior } else { ior };
+    let eta = if s.front != C::INVERTED_ETA {
+        1.0 / ior
+    } else {
+        ior
+    };
     let k = 1.0 - eta * eta * (1.0 - cos_i * cos_i);
     if k < 0.0 {
         Bounce {
@@ -256,7 +371,20 @@ impl Shader<'_> {
     }
 
     /// [`Shader::trace`], reporting every step to `probe`.
+    #[inline]
     pub fn trace_probed<P: ShadingProbe>(
+        &self,
+        ray: &Ray,
+        depth: u32,
+        t_min: f64,
+        rays: &mut RayCount,
+        probe: &mut P,
+    ) -> DVec3 {
+        self.trace_as::<P, Lecture>(ray, depth, t_min, rays, probe)
+    }
+
+    /// [`Shader::trace_probed`] under conventions `C`.
+    pub fn trace_as<P: ShadingProbe, C: Conventions>(
         &self,
         ray: &Ray,
         depth: u32,
@@ -271,23 +399,30 @@ impl Shader<'_> {
         let Some(hit) = closest else {
             return self.scene.background;
         };
-        let s = self.world.surface(ray, &hit);
+        let s = conventional_surface::<C>(self.world, self.world.surface(ray, &hit));
         let m = &self.scene.materials[self.scene.objects[hit.object as usize].material as usize];
         let n = facing_normal(&s, ray.dir);
-        let mut c = self.scene.ambient * m.ambient;
+        let mut c = if C::AMBIENT {
+            self.scene.ambient * m.ambient
+        } else {
+            DVec3::ZERO
+        };
         probe.surface(&hit, &s, n, m, c);
         for (k, light) in self.scene.lights.iter().enumerate() {
-            let t = unshadowed_light_term(light, &s, n, ray.dir, m);
+            let t = light_term_as::<C>(light, &s, n, ray.dir, m);
             let lit = t.diffuse + t.specular;
             // A light that would add nothing needs no shadow ray.
             if t.outside_cone || lit == DVec3::ZERO {
                 probe.light(k, light, &t, None);
                 continue;
             }
-            rays.0 += 1;
-            let blocked = self
-                .world
-                .occluded(&t.shadow_ray, SECONDARY_LAMBDA_MIN, t.shadow_t_max);
+            rays.0 += C::SHADOWS as u64;
+            let blocked = (C::SELF_SHADOWED_DEPTHS != 0
+                && (C::SELF_SHADOWED_DEPTHS >> depth.min(31)) & 1 == 1)
+                || C::SHADOWS
+                    && self
+                        .world
+                        .occluded(&t.shadow_ray, SECONDARY_LAMBDA_MIN, t.shadow_t_max);
             probe.light(k, light, &t, Some(blocked));
             if !blocked {
                 c += lit;
@@ -295,18 +430,32 @@ impl Shader<'_> {
         }
         if m.mirror == DVec3::ZERO && m.transmission == DVec3::ZERO {
             probe.no_secondary(NoSecondary::Material);
-        } else if depth >= self.scene.max_depth {
+        } else if if C::EXTRA_DEPTH == 0 {
+            depth >= self.scene.max_depth
+        } else {
+            depth as i64 >= self.scene.max_depth as i64 + C::EXTRA_DEPTH
+        } {
             probe.no_secondary(NoSecondary::MaxDepth);
         } else {
-            let b = bounce(&s, n, ray.dir, m.ior);
-            for (branch, coefficient, next) in [
-                (Branch::Reflection, m.mirror, &b.reflected),
-                (Branch::Refraction, m.transmission, &b.refracted),
+            let b = bounce_as::<C>(&s, n, ray.dir, m.ior);
+            for (branch, coefficient, next, traced) in [
+                (Branch::Reflection, m.mirror, &b.reflected, C::REFLECTION),
+                (
+                    Branch::Refraction,
+                    m.transmission,
+                    &b.refracted,
+                    C::REFRACTION,
+                ),
             ] {
-                if coefficient != DVec3::ZERO {
+                if traced && coefficient != DVec3::ZERO {
                     let mut child = probe.secondary(branch, &b);
-                    let colour =
-                        self.trace_probed(next, depth + 1, SECONDARY_LAMBDA_MIN, rays, &mut child);
+                    let colour = self.trace_as::<P, C>(
+                        next,
+                        depth + 1,
+                        SECONDARY_LAMBDA_MIN,
+                        rays,
+                        &mut child,
+                    );
                     let add = coefficient * colour;
                     probe.secondary_done(branch, child, coefficient, colour, add);
                     c += add;

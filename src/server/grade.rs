@@ -578,6 +578,10 @@ async fn grade(
         inline_diff: query.inline_diff.unwrap_or(defaults.inline_diff),
         flip: query.flip.unwrap_or(defaults.flip),
         scoring,
+        diagnosis: grade::diagnose::Settings {
+            max_pixels: app.config.diagnosis_max_pixels,
+            ..defaults.diagnosis
+        },
         ..defaults
     };
     let deadline_len = app.config.deadline();

@@ -3,6 +3,9 @@
 //! - `support_server`: a `TestApp` (the real router on a loopback port), scene makers;
 //! - `cli`: `raytile render | hits | validate` as a user runs them;
 //! - `cost`: the ray budget, its refusals and its cut renders;
+//! - `diagnose`: naming the mistake behind a failing submission, each mistake made by
+//!   `wrong_tracer` (a student's tracer written from the specification, with a flag per
+//!   mistake) or by moving the reference's pixels;
 //! - `cluster`: two `raytile serve` processes behind nginx, and `render --servers`
 //!   finishing a frame while a replica dies (the nginx test is ignored unless asked for:
 //!   `bash .ci/test-all` installs nginx and runs it);
@@ -29,6 +32,7 @@ mod support_server;
 mod cli;
 mod cluster;
 mod cost;
+mod diagnose;
 mod geometry;
 mod grade;
 mod imports;
@@ -41,3 +45,4 @@ mod server;
 mod server_grade;
 mod streaming;
 mod validation;
+mod wrong_tracer;

@@ -26,7 +26,7 @@ fn api_dir() -> &'static Path {
 }
 
 /// The OpenAPI document as JSON.
-fn document() -> Value {
+pub(crate) fn document() -> Value {
     let text = std::fs::read_to_string(api_dir().join("openapi.yaml")).expect("api/openapi.yaml");
     serde_yaml_ng::from_str(&text).expect("openapi.yaml is YAML")
 }
@@ -66,14 +66,14 @@ fn validator(doc: &Value, schema: &Value) -> Validator {
 }
 
 /// One answer of the server, as the checks need it.
-struct Answer {
+pub(crate) struct Answer {
     status: u16,
     headers: HeaderMap,
-    body: Vec<u8>,
+    pub(crate) body: Vec<u8>,
 }
 
 impl Answer {
-    async fn from_reqwest(res: reqwest::Response) -> Answer {
+    pub(crate) async fn from_reqwest(res: reqwest::Response) -> Answer {
         Answer {
             status: res.status().as_u16(),
             headers: res.headers().clone(),
@@ -97,7 +97,7 @@ impl Answer {
 }
 
 /// Checks `answer` to `method path` against the document.
-fn check(doc: &Value, method: &str, path: &str, answer: &Answer) {
+pub(crate) fn check(doc: &Value, method: &str, path: &str, answer: &Answer) {
     let what = format!("{} {path} → {}", method.to_uppercase(), answer.status);
     let op = &doc["paths"][path][method];
     assert!(op.is_object(), "{what}: operation not documented");
