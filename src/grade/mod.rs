@@ -22,6 +22,7 @@
 pub mod answer;
 pub mod compare;
 pub mod explain;
+pub mod footprint;
 pub mod image;
 pub mod metrics;
 pub mod report;

@@ -38,7 +38,10 @@ use tokio::sync::oneshot;
 use super::AppState;
 use super::admission::{CostLimit, RenderSlot};
 use super::error::ApiError;
-use super::extract::{Accepted, Offers, RegionQuery, RequestInfo, SceneBody, deadline_exceeded};
+use super::extract::{
+    Accepted, Offers, RegionQuery, RequestInfo, SceneBody, charge_to, deadline_exceeded,
+};
+use super::memory::{Charge, Reservation};
 use super::metrics::Metrics;
 use super::shutdown::Phase;
 use super::stream::{self, Aborter, BodyWriter};
@@ -164,6 +167,8 @@ async fn start(
 ) -> Result<Response, ApiError> {
     let region = query.within(&body.scene)?;
     let deadline = info.start + app.config.deadline();
+    let mut memory = body.memory;
+    charge_output(&app, &body.scene, &mut memory, region, output, deadline).await?;
     let queued = Instant::now();
     let slot = tokio::time::timeout_at(deadline.into(), app.admission.admit(&app.shutdown))
         .await
@@ -185,6 +190,7 @@ async fn start(
         writer,
         trailers,
         slot,
+        memory,
         done,
         cost,
         verdict: verdict_tx,
@@ -228,6 +234,47 @@ async fn start(
         );
     }
     Ok(res)
+}
+
+/// Grows the scene's reservation by what streaming `region` as `output` holds
+/// ([`crate::output::footprint`]), before a render slot is taken: a frame too wide to
+/// stream within the budget is refused with 422 and `/image/width`.
+async fn charge_output(
+    app: &AppState,
+    scene: &Scene,
+    memory: &mut Reservation,
+    region: Rect,
+    output: Output,
+    deadline: Instant,
+) -> Result<(), ApiError> {
+    let format = match output {
+        Output::Png => None,
+        Output::Hits(f) => Some(f),
+    };
+    let channel = crate::output::footprint::Channel {
+        chunk_bytes: stream::CHUNK_BYTES,
+        chunks: stream::CHANNEL_CHUNKS,
+    };
+    let streaming = crate::output::footprint(
+        scene,
+        format,
+        region,
+        app.config.tile,
+        app.pool.current_num_threads(),
+        channel,
+    );
+    let charge = Charge::fields(
+        memory.bytes() + streaming,
+        "streaming the answer",
+        vec![crate::scene::Problem::new(
+            "/image/width",
+            format!(
+                "a row of {} pixels drives the memory its answer holds while it streams",
+                region.width
+            ),
+        )],
+    );
+    charge_to(app, memory, &charge, deadline.into()).await
 }
 
 fn ms(d: Duration) -> f64 {
@@ -305,6 +352,8 @@ struct Job {
     writer: BodyWriter,
     trailers: bool,
     slot: RenderSlot,
+    /// The render's memory, given back when the job ends.
+    memory: Reservation,
     done: oneshot::Sender<()>,
     cost: CostLimit,
     /// Whether the render may start: the cost pilot's answer, sent before any tracing.
@@ -333,6 +382,7 @@ impl Job {
             writer,
             trailers,
             slot,
+            memory: _memory,
             done,
             cost,
             verdict,

@@ -10,6 +10,7 @@
 //! - `geometry`: shapes under transforms against hand-computed answers;
 //! - `imports`: no two modules import each other, the server never the command line;
 //! - `lecture`: the lecture's worked example;
+//! - `memory`: the memory budget, its refusals, its queue and its ledger;
 //! - `properties`: BVH against brute force, invariance, determinism, regions;
 //! - `schema`: the JSON Schema and the parser agree;
 //! - `openapi`: `api/openapi.yaml` and the server agree;
@@ -29,6 +30,7 @@ mod geometry;
 mod grade;
 mod imports;
 mod lecture;
+mod memory;
 mod openapi;
 mod properties;
 mod schema;
