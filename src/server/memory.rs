@@ -18,11 +18,14 @@
 //!
 //! A charge larger than the whole budget can never fit: it is refused at once with
 //! [`ApiError::OverMemory`] (413 for a body, 422 with the JSON pointers of the fields
-//! that drive it otherwise). A charge that does not fit *now* waits for earlier
-//! requests to give memory back, first come first served (a large request is not
-//! overtaken for ever by small ones), if fewer than `--queue` requests already wait for
-//! memory; otherwise it is refused with 503 and `Retry-After`. The caller bounds the
-//! wait by the request's deadline. Both refusals count as `memory` in
+//! that drive it otherwise). A first charge (the body, before anything is allocated)
+//! that does not fit *now* waits for earlier requests to give memory back, first come
+//! first served, if fewer than `--queue` requests already wait for memory; otherwise it
+//! is refused with 503 and `Retry-After`. The caller bounds the wait by the request's
+//! deadline. A request that already holds memory never waits for more: it is refused
+//! with 503 at once, giving back what it holds. Otherwise requests holding their bodies
+//! could all wait for each other's memory until their deadlines (four large grades at
+//! once did, before this rule). Both refusals count as `memory` in
 //! `raytile_rejected_requests_total`; `raytile_memory_reserved_bytes` is the ledger.
 //!
 //! The ledger counts in KiB (a charge is rounded up), which lets a tokio semaphore
@@ -250,9 +253,10 @@ impl MemoryBudget {
         }
     }
 
-    /// Makes `r` hold at least `charge.bytes` in all: reserves the difference as
-    /// [`MemoryBudget::reserve`] does (waiting, or refused), or gives back what it holds
-    /// beyond when the charge is smaller.
+    /// Makes `r` hold `charge.bytes` in all: reserves the difference as
+    /// [`MemoryBudget::reserve`] does, or gives back what it holds beyond when the charge
+    /// is smaller. A reservation that holds something already does not wait: what does
+    /// not fit now is refused with 503, so that no two requests wait for each other.
     pub async fn resize(
         &self,
         r: &mut Reservation,
@@ -272,6 +276,18 @@ impl MemoryBudget {
             bytes: charge.bytes - held,
             ..charge.clone()
         };
+        if held > 0 {
+            let p = self
+                .units
+                .clone()
+                .try_acquire_many_owned(units(more.bytes))
+                .map_err(|_| {
+                    self.metrics.reject("memory");
+                    ApiError::MemoryFull
+                })?;
+            r.absorb(self.held(p));
+            return Ok(());
+        }
         let extra = self.reserve(&more, shutdown).await?;
         r.absorb(extra);
         Ok(())
@@ -445,6 +461,12 @@ mod tests {
             let e = b.resize(&mut r, &Charge::body(65 << 10, "d"), &s).await;
             assert_eq!(e.unwrap_err().status().as_u16(), 413);
             assert_eq!(r.bytes(), 3 << 10, "a refusal keeps what was held");
+            // What holds memory does not wait for more: 503 at once.
+            let other = b.reserve(&Charge::body(60 << 10, "e"), &s).await.unwrap();
+            let e = b.resize(&mut r, &Charge::body(10 << 10, "f"), &s).await;
+            assert_eq!(e.unwrap_err(), ApiError::MemoryFull);
+            assert_eq!(b.waiting(), 0);
+            drop(other);
             drop(r);
             assert_eq!((b.reserved_bytes(), m.memory_reserved.get()), (0, 0));
         });
