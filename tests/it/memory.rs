@@ -34,8 +34,7 @@ async fn a_budget_too_small_for_the_body_limit_is_a_startup_error() {
         memory_bytes: 40 << 20,
         ..config()
     })
-    .err()
-    .expect("refused");
+    .expect_err("refused");
     let message = e.to_string();
     assert!(
         message.contains("--memory-bytes 41943040 is too small"),
