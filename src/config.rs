@@ -27,10 +27,12 @@ pub const DEFAULT_STALL_SECONDS: f64 = 15.0;
 /// The memory budget requests are charged against (`server::memory`): 768 MiB, for the
 /// 1 GiB container limit in `deploy/`. The headroom rule: the budget is the container's
 /// limit less what the process holds before any request (the binary, its thread stacks,
-/// the allocator's slack; an idle release server peaks at about 10 MiB of RSS) and a
+/// the allocator's slack; an idle release server's VmHWM is about 9 MiB) and a
 /// margin for what no estimate sees (hyper's buffers of open connections, the
 /// allocator's fragmentation under load): a quarter of the limit.
 pub const DEFAULT_MEMORY_BYTES: u64 = 768 * 1024 * 1024;
+/// The largest memory budget: what the ledger counts, in KiB with `u32` (4 TiB).
+pub const MAX_MEMORY_BYTES: u64 = u32::MAX as u64 * 1024;
 /// Memory a budget keeps beyond two bodies of `--max-body-bytes` at least.
 pub const MIN_MEMORY_HEADROOM_BYTES: u64 = 16 * 1024 * 1024;
 /// Connections open at once: well under the usual limit of 1024 file descriptors.
@@ -310,7 +312,7 @@ pub(crate) fn parse_bytes(s: &str) -> Result<u64, String> {
     let bytes = n
         .checked_mul(scale)
         .ok_or_else(|| format!("`{s}` is too large"))?;
-    if !(1 << 20..=crate::server::memory::MAX_BUDGET_BYTES).contains(&bytes) {
+    if !(1 << 20..=MAX_MEMORY_BYTES).contains(&bytes) {
         return Err(format!("`{s}`: must be at least 1 MiB and at most 4 TiB"));
     }
     Ok(bytes)

@@ -154,7 +154,7 @@ mod tests {
     use super::*;
     use crate::format::png::RgbImage;
     use crate::format::{csv, json, ndjson, npy};
-    use crate::server::memory::measure;
+    use crate::measure;
 
     fn peak_of(bytes: &[u8], family: Family, read: impl FnOnce(&[u8]) -> bool) {
         let estimate = submission(bytes, Some(family)).unwrap();

@@ -31,8 +31,8 @@ mod tests {
     use crate::grade::{
         GradeOptions, Submission, Tolerances, grade, reference_hits, reference_image,
     };
+    use crate::measure;
     use crate::render::{Cancel, Renderer};
-    use crate::server::memory::measure;
 
     fn renderer(w: u32, h: u32) -> Renderer {
         let text = format!(

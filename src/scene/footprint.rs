@@ -244,8 +244,8 @@ pub fn built_fields(scene: &Scene) -> Vec<Problem> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::measure;
     use crate::scene::{Limits, parse};
-    use crate::server::memory::measure;
 
     #[test]
     fn the_scan_counts_every_part() {
@@ -331,15 +331,17 @@ mod tests {
         assert_eq!(scene.is_ok(), expect_valid, "{:?}", scene.err());
         if let Ok(scene) = scene {
             let parsed = measure::live() - base;
-            // Building the hierarchies (the meshes' on first use) and rendering a frame.
-            let (renderer, peak) = measure::peak(|| {
-                let r = crate::render::Renderer::new(std::sync::Arc::new(scene));
-                let frame = crate::grade::reference_image(&r, &crate::render::Cancel::default());
-                assert!(frame.is_ok());
-                r
+            // Building the hierarchies over the objects and inside the meshes, and
+            // tracing a ray through them.
+            let ((scene, world), peak) = measure::peak(|| {
+                let world = scene.world();
+                let ray = crate::geometry::Ray::new(glam::DVec3::ZERO, glam::DVec3::Z);
+                std::hint::black_box(world.closest(&ray, 1e-9, f64::INFINITY));
+                (scene, world)
             });
             let held = measure::live() - base;
-            let estimate = built(&renderer.scene);
+            let estimate = built(&scene);
+            drop(world);
             assert!(
                 estimate >= parsed + peak,
                 "built: estimate {estimate} < the scene {parsed} and the hierarchy's peak {peak}"

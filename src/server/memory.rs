@@ -46,7 +46,7 @@ use crate::scene::Problem;
 pub const UNIT_BYTES: u64 = 1024;
 
 /// The largest budget the ledger can keep (`u32::MAX` units).
-pub const MAX_BUDGET_BYTES: u64 = u32::MAX as u64 * UNIT_BYTES;
+pub const MAX_BUDGET_BYTES: u64 = crate::config::MAX_MEMORY_BYTES;
 
 /// What a request is about to allocate, and what in the request drives it.
 #[derive(Debug, Clone, PartialEq)]
@@ -304,32 +304,6 @@ impl MemoryBudget {
     }
 }
 
-/// The unit tests' global allocator counts the bytes live and their peak, so that the
-/// estimators' tests can check an estimate against what really was allocated (`cargo
-/// nextest` runs each test in a process of its own, so no other test counts into it).
-#[cfg(test)]
-pub(crate) mod measure {
-    use peak_alloc::PeakAlloc;
-
-    #[global_allocator]
-    static COUNTING: PeakAlloc = PeakAlloc;
-
-    /// Runs `f` and returns what it returns with the most bytes that were live at once
-    /// during it, beyond those live when it started.
-    pub(crate) fn peak<T>(f: impl FnOnce() -> T) -> (T, u64) {
-        let base = COUNTING.current_usage();
-        COUNTING.reset_peak_usage();
-        let t = f();
-        let peak = COUNTING.peak_usage().saturating_sub(base);
-        (t, peak as u64)
-    }
-
-    /// Bytes live now.
-    pub(crate) fn live() -> u64 {
-        COUNTING.current_usage() as u64
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -474,10 +448,10 @@ mod tests {
 
     #[test]
     fn the_counting_allocator_sees_a_buffer() {
-        let before = measure::live();
-        let (v, peak) = measure::peak(|| vec![1u8; 5 << 20]);
+        let before = crate::measure::live();
+        let (v, peak) = crate::measure::peak(|| vec![1u8; 5 << 20]);
         assert!(peak >= 5 << 20, "{peak}");
         drop(v);
-        assert!(measure::live() <= before + (1 << 20));
+        assert!(crate::measure::live() <= before + (1 << 20));
     }
 }
