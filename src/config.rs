@@ -24,6 +24,17 @@ pub const DEFAULT_DEADLINE_SECONDS: f64 = 300.0;
 pub const DEFAULT_GRACE_SECONDS: f64 = 25.0;
 /// How long a response may wait for a client that takes nothing.
 pub const DEFAULT_STALL_SECONDS: f64 = 15.0;
+/// The memory budget requests are charged against (`server::memory`): 768 MiB, for the
+/// 1 GiB container limit in `deploy/`. The headroom rule: the budget is the container's
+/// limit less what the process holds before any request (the binary, its thread stacks,
+/// the allocator's slack; an idle release server's VmHWM is about 9 MiB) and a
+/// margin for what no estimate sees (hyper's buffers of open connections, the
+/// allocator's fragmentation under load): a quarter of the limit.
+pub const DEFAULT_MEMORY_BYTES: u64 = 768 * 1024 * 1024;
+/// The largest memory budget: what the ledger counts, in KiB with `u32` (4 TiB).
+pub const MAX_MEMORY_BYTES: u64 = u32::MAX as u64 * 1024;
+/// Memory a budget keeps beyond two bodies of `--max-body-bytes` at least.
+pub const MIN_MEMORY_HEADROOM_BYTES: u64 = 16 * 1024 * 1024;
 /// Connections open at once: well under the usual limit of 1024 file descriptors.
 pub const DEFAULT_MAX_CONNECTIONS: u32 = 512;
 /// How long a request's head may take to arrive, from its first byte.
@@ -68,6 +79,13 @@ pub struct ServeArgs {
     /// Largest request body in bytes; larger ones get 413.
     #[arg(long, env = "RAYTILE_MAX_BODY_BYTES", default_value_t = DEFAULT_MAX_BODY_BYTES)]
     pub max_body_bytes: usize,
+
+    /// Memory budget in bytes (`805306368`, or with a unit: `768MiB`, `1GiB`, `512MB`):
+    /// every request is charged its worst case before it allocates; what can never fit
+    /// gets 413 or 422, what does not fit now waits in the queue or gets 503. Size it as
+    /// the container's memory limit less a quarter (`docs/deploy.md`).
+    #[arg(long, env = "RAYTILE_MEMORY_BYTES", default_value = "768MiB", value_parser = parse_bytes)]
+    pub memory_bytes: u64,
 
     /// Renders admitted to trace at once (default: one per core); they share the rayon
     /// threads, so more only adds latency to each.
@@ -139,6 +157,7 @@ impl Default for ServeArgs {
             max_triangles: limits.max_triangles,
             max_rays: DEFAULT_MAX_RAYS,
             max_body_bytes: DEFAULT_MAX_BODY_BYTES,
+            memory_bytes: DEFAULT_MEMORY_BYTES,
             max_renders: None,
             queue: DEFAULT_QUEUE,
             deadline_seconds: DEFAULT_DEADLINE_SECONDS,
@@ -210,6 +229,33 @@ impl ServeArgs {
     pub fn grace(&self) -> Duration {
         Duration::from_secs_f64(self.grace_seconds)
     }
+
+    /// The smallest memory budget these settings allow: two bodies of
+    /// `--max-body-bytes` (one read, one copy as a route parses it) and
+    /// [`MIN_MEMORY_HEADROOM_BYTES`]; less, and a request within the body limit could be
+    /// refused for its size alone.
+    pub fn min_memory_bytes(&self) -> u64 {
+        (self.max_body_bytes as u64)
+            .saturating_mul(2)
+            .saturating_add(MIN_MEMORY_HEADROOM_BYTES)
+    }
+
+    /// Checks what one flag alone cannot: that `--memory-bytes` holds the largest body.
+    pub fn check(&self) -> Result<(), String> {
+        let min = self.min_memory_bytes();
+        if self.memory_bytes < min {
+            return Err(format!(
+                "--memory-bytes {} is too small: with --max-body-bytes {} it must be at least \
+                 {min} bytes ({} MiB: two bodies and {} MiB); raise it or lower \
+                 --max-body-bytes",
+                self.memory_bytes,
+                self.max_body_bytes,
+                min.div_ceil(1 << 20),
+                MIN_MEMORY_HEADROOM_BYTES >> 20,
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// What each connection may hold (see `server::connection`).
@@ -244,9 +290,73 @@ pub(crate) fn parse_seconds(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A number of bytes, plain or with a unit: `KiB`, `MiB`, `GiB` (powers of 1024), `kB`,
+/// `MB`, `GB` (powers of 1000), `K`, `M`, `G` as Kubernetes' `Ki`, `Mi`, `Gi` too; at least
+/// 1 MiB, at most 4 TiB (what the memory ledger can count).
+pub(crate) fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let split = t.find(|c: char| !c.is_ascii_digit()).unwrap_or(t.len());
+    let (digits, unit) = t.split_at(split);
+    let scale: u64 = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 1,
+        "k" | "ki" | "kib" => 1 << 10,
+        "m" | "mi" | "mib" => 1 << 20,
+        "g" | "gi" | "gib" => 1 << 30,
+        "kb" => 1_000,
+        "mb" => 1_000_000,
+        "gb" => 1_000_000_000,
+        other => {
+            return Err(format!(
+                "`{s}`: unknown unit `{other}` (use KiB, MiB or GiB)"
+            ));
+        }
+    };
+    let n: u64 = digits
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number of bytes"))?;
+    let bytes = n
+        .checked_mul(scale)
+        .ok_or_else(|| format!("`{s}` is too large"))?;
+    if !(1 << 20..=MAX_MEMORY_BYTES).contains(&bytes) {
+        return Err(format!("`{s}`: must be at least 1 MiB and at most 4 TiB"));
+    }
+    Ok(bytes)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bytes_take_units_and_refuse_nonsense() {
+        assert_eq!(parse_bytes("805306368"), Ok(768 << 20));
+        assert_eq!(parse_bytes("768MiB"), Ok(768 << 20));
+        assert_eq!(parse_bytes("1Gi"), Ok(1 << 30));
+        assert_eq!(parse_bytes(" 512 MB "), Ok(512_000_000));
+        for bad in [
+            "",
+            "MiB",
+            "-1",
+            "1.5GiB",
+            "12 parsecs",
+            "1000",
+            "99999999TiB",
+        ] {
+            assert!(parse_bytes(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn the_budget_must_hold_two_largest_bodies() {
+        let mut c = ServeArgs::default();
+        assert_eq!(c.check(), Ok(()));
+        c.memory_bytes = 40 << 20;
+        let e = c.check().unwrap_err();
+        assert!(e.contains("--memory-bytes 41943040 is too small"), "{e}");
+        assert!(e.contains("48 MiB"), "{e}");
+        c.max_body_bytes = 1 << 20;
+        assert_eq!(c.check(), Ok(()));
+    }
 
     #[test]
     fn seconds_accept_fractions_and_refuse_nonsense() {

@@ -14,6 +14,9 @@ pub mod geometry;
 pub mod grade;
 /// Reading JSON strictly, the failing field's path and the position apart.
 pub mod json;
+/// The unit tests' counting allocator, for the memory estimators' tests.
+#[cfg(test)]
+mod measure;
 /// Sinks that stream PNG and hit data while tiles trace.
 pub mod output;
 /// The camera, Whitted shading and the tile loop.

@@ -24,6 +24,7 @@
 //! `output`, `grade`, `server` and `cli` use `format`, never the other way.
 
 pub mod csv;
+pub mod footprint;
 pub mod hit;
 pub mod json;
 pub mod ndjson;

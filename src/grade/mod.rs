@@ -23,6 +23,7 @@ pub mod answer;
 pub mod compare;
 pub mod diagnose;
 pub mod explain;
+pub mod footprint;
 pub mod image;
 pub mod legend;
 pub mod metrics;

@@ -5,6 +5,7 @@
 //! default filled in, every transform inverted and every material resolved.
 
 pub mod document;
+pub mod footprint;
 pub mod limits;
 pub mod problem;
 mod strict_json;

@@ -97,6 +97,26 @@ pub enum ApiError {
     /// Every render slot is busy and the queue is full (503 + `Retry-After`).
     #[error("every render slot is busy and the queue is full")]
     Saturated,
+    /// What the request needs at worst exceeds the whole memory budget, so it can never
+    /// be served (`super::memory`): 413 when the body's size alone drives it, 422 with
+    /// the fields that do otherwise.
+    #[error(
+        "{what} needs up to {needed_bytes} bytes of memory, more than the server's whole budget of {budget_bytes} bytes"
+    )]
+    OverMemory {
+        /// What the memory is for: "the body", "parsing the scene".
+        what: String,
+        /// The worst case of the request.
+        needed_bytes: u64,
+        /// `--memory-bytes`.
+        budget_bytes: u64,
+        /// The fields that drive it, with their pointers (empty for the body's size).
+        problems: Vec<Problem>,
+    },
+    /// The memory budget is taken by requests in flight and as many as allowed wait for
+    /// it already (503 + `Retry-After`).
+    #[error("the memory budget is taken by the requests in flight and the queue is full")]
+    MemoryFull,
     /// The server has as many connections open as it allows (503 + `Retry-After`),
     /// answered by the accept loop before the connection is read.
     #[error("the server has {limit} connections open, as many as it allows")]
@@ -200,14 +220,19 @@ impl ApiError {
             ApiError::MethodNotAllowed => StatusCode::METHOD_NOT_ALLOWED,
             ApiError::NotAcceptable { .. } => StatusCode::NOT_ACCEPTABLE,
             ApiError::BodyTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
+            ApiError::OverMemory { problems, .. } if problems.is_empty() => {
+                StatusCode::PAYLOAD_TOO_LARGE
+            }
+            ApiError::OverMemory { .. } => StatusCode::UNPROCESSABLE_ENTITY,
             ApiError::UnsupportedMediaType { .. } => StatusCode::UNSUPPORTED_MEDIA_TYPE,
             ApiError::InvalidScene(_)
             | ApiError::PixelOutside(_)
             | ApiError::InvalidSubmission(_)
             | ApiError::ReferenceFailed(_) => StatusCode::UNPROCESSABLE_ENTITY,
-            ApiError::Saturated | ApiError::TooManyConnections { .. } | ApiError::ShuttingDown => {
-                StatusCode::SERVICE_UNAVAILABLE
-            }
+            ApiError::Saturated
+            | ApiError::MemoryFull
+            | ApiError::TooManyConnections { .. }
+            | ApiError::ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
             ApiError::DeadlineExceeded(_) => StatusCode::GATEWAY_TIMEOUT,
             ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
         }
@@ -230,6 +255,8 @@ impl ApiError {
             ApiError::InvalidSubmission(_) => ("invalid-submission", "Invalid submission"),
             ApiError::ReferenceFailed(_) => ("reference-failed", "Reference not computed"),
             ApiError::Saturated => ("saturated", "Server saturated"),
+            ApiError::OverMemory { .. } => ("over-memory", "Too large for the memory budget"),
+            ApiError::MemoryFull => ("memory-full", "Memory budget taken"),
             ApiError::TooManyConnections { .. } => ("too-many-connections", "Too many connections"),
             ApiError::ShuttingDown => ("shutting-down", "Server shutting down"),
             ApiError::DeadlineExceeded(_) => ("deadline-exceeded", "Deadline exceeded"),
@@ -263,7 +290,19 @@ impl ApiError {
                 height,
             }) => json!({ "u": u, "v": v, "width": width, "height": height }),
             ApiError::InvalidSubmission(e) => json!({ "reason": submission_reason(e) }),
-            ApiError::Saturated | ApiError::ShuttingDown => {
+            ApiError::OverMemory {
+                needed_bytes,
+                budget_bytes,
+                problems,
+                ..
+            } => {
+                let mut m = json!({ "needed_bytes": needed_bytes, "budget_bytes": budget_bytes });
+                if !problems.is_empty() {
+                    m["problems"] = json!(problems);
+                }
+                m
+            }
+            ApiError::Saturated | ApiError::MemoryFull | ApiError::ShuttingDown => {
                 json!({ "retry_after_seconds": RETRY_AFTER_SECONDS })
             }
             ApiError::TooManyConnections { limit } => {
@@ -307,7 +346,10 @@ impl IntoResponse for ApiError {
         let status = self.status();
         let refused = matches!(
             self,
-            ApiError::Saturated | ApiError::TooManyConnections { .. } | ApiError::ShuttingDown
+            ApiError::Saturated
+                | ApiError::MemoryFull
+                | ApiError::TooManyConnections { .. }
+                | ApiError::ShuttingDown
         );
         if status.is_server_error() && !refused {
             tracing::error!(error = %self, status = status.as_u16(), "request failed");
@@ -327,6 +369,7 @@ impl IntoResponse for ApiError {
         if matches!(
             self,
             ApiError::BodyTooLarge { .. }
+                | ApiError::OverMemory { .. }
                 | ApiError::DeadlineExceeded(_)
                 | ApiError::ShuttingDown
                 | ApiError::Internal(_)
@@ -393,6 +436,13 @@ mod tests {
             ApiError::InvalidSubmission(GradeError::Empty),
             ApiError::ReferenceFailed("x".into()),
             ApiError::Saturated,
+            ApiError::OverMemory {
+                what: "the body".into(),
+                needed_bytes: 2,
+                budget_bytes: 1,
+                problems: Vec::new(),
+            },
+            ApiError::MemoryFull,
             ApiError::ShuttingDown,
             ApiError::DeadlineExceeded(Duration::from_secs(1)),
             ApiError::Internal("secret".into()),

@@ -8,10 +8,14 @@
 //! - [`SceneBody`]: the body as a validated scene: `Content-Type` first (415), then the
 //!   size limit (413), then JSON syntax (400 with line and column), then the scene's
 //!   meaning and the server's limits (422 with every problem). All of it before
-//!   admission, so a bad request never takes a render slot;
+//!   admission, so a bad request never takes a render slot; but each step is charged
+//!   to the memory budget before it allocates ([`super::memory`]): the body by its
+//!   `Content-Length`, the parse by a pre-scan of the text, and the scene it holds by
+//!   its counts;
 //! - the pieces other extractors are made of: [`query_pairs`] and the parsers of single
 //!   parameters, [`media_essence`], [`read_limited`] (the body behind the size limit and
-//!   the deadline), [`deadline_of`].
+//!   the deadline), [`read_charged`] (the same, charged to the memory budget first),
+//!   [`charge_to`], [`deadline_of`].
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -23,7 +27,9 @@ use axum::http::{HeaderMap, Uri, header};
 
 use super::AppState;
 use super::error::ApiError;
+use super::memory::{Charge, Reservation};
 use crate::render::{Rect, region_in_frame};
+use crate::scene::footprint::{self, JsonShape};
 use crate::scene::{self, Scene};
 
 /// The request's id and when it arrived.
@@ -278,12 +284,15 @@ pub fn is_json(content_type: &str) -> bool {
 }
 
 /// The body, read and validated into a scene.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct SceneBody {
     /// The scene.
     pub scene: Arc<Scene>,
     /// Time spent reading and validating the body.
     pub parse: Duration,
+    /// What the scene holds, reserved in the memory budget ([`footprint::built`]):
+    /// whoever keeps the scene keeps this too, and grows it for what they add.
+    pub memory: Reservation,
 }
 
 impl FromRequest<AppState> for SceneBody {
@@ -299,22 +308,80 @@ impl FromRequest<AppState> for SceneBody {
             });
         }
         let t = Instant::now();
-        let (_, bytes) = read_limited(req, app).await?;
-        let limits = app.config.limits();
-        // Validation is CPU work proportional to the body (16 MiB of mesh takes a while):
-        // keep it off the threads that move bytes.
-        let parsed = tokio::time::timeout_at(
-            deadline,
-            tokio::task::spawn_blocking(move || scene::parse(&bytes, &limits)),
-        )
-        .await
-        .map_err(|_| deadline_exceeded(app))?
-        .map_err(|e| ApiError::Internal(format!("the validation task failed: {e}")))?;
+        let (_, bytes, mut memory) = read_charged(req, app, 1, "the body").await?;
+        let (bytes, scene) = parse_charged(app, bytes, &mut memory, "", deadline).await?;
+        drop(bytes);
+        let scene = scene.map_err(ApiError::from)?;
+        let held = Charge::fields(
+            footprint::built(&scene),
+            "the scene",
+            footprint::built_fields(&scene),
+        );
+        charge_to(app, &mut memory, &held, deadline).await?;
         Ok(SceneBody {
-            scene: Arc::new(parsed?),
+            scene: Arc::new(scene),
             parse: t.elapsed(),
+            memory,
         })
     }
+}
+
+/// Parses and validates the scene `text` against the server's limits, charged first to
+/// `memory` (which holds the text already): a pre-scan of the text prices the parse
+/// ([`footprint::parse_peak`]; the fields that drive it under `scene_at`). Both run off
+/// tokio's threads: they are CPU work proportional to the text (16 MiB of mesh takes a
+/// while). Gives the text back with the outcome; `memory` then holds the text and the
+/// parse's peak, to be resized by the caller.
+pub async fn parse_charged(
+    app: &AppState,
+    text: Bytes,
+    memory: &mut Reservation,
+    scene_at: &str,
+    deadline: tokio::time::Instant,
+) -> Result<(Bytes, Result<Scene, scene::SceneError>), ApiError> {
+    let (text, shape) = blocking(app, deadline, move || {
+        let shape = JsonShape::scan(&text);
+        (text, shape)
+    })
+    .await?;
+    let parse = Charge::fields(
+        text.len() as u64 + footprint::parse_peak(&shape),
+        "parsing the scene",
+        footprint::parse_fields(&shape),
+    )
+    .under(scene_at);
+    charge_to(app, memory, &parse, deadline).await?;
+    let limits = app.config.limits();
+    blocking(app, deadline, move || {
+        let scene = scene::parse(&text, &limits);
+        (text, scene)
+    })
+    .await
+}
+
+/// Runs `f` on tokio's blocking threads, within the deadline.
+pub async fn blocking<T: Send + 'static>(
+    app: &AppState,
+    deadline: tokio::time::Instant,
+    f: impl FnOnce() -> T + Send + 'static,
+) -> Result<T, ApiError> {
+    tokio::time::timeout_at(deadline, tokio::task::spawn_blocking(f))
+        .await
+        .map_err(|_| deadline_exceeded(app))?
+        .map_err(|e| ApiError::Internal(format!("the parsing task failed: {e}")))
+}
+
+/// Makes `memory` hold `charge` in all, waiting for the budget within the deadline
+/// (see [`super::memory::MemoryBudget::resize`]).
+pub async fn charge_to(
+    app: &AppState,
+    memory: &mut Reservation,
+    charge: &Charge,
+    deadline: tokio::time::Instant,
+) -> Result<(), ApiError> {
+    tokio::time::timeout_at(deadline, app.memory.resize(memory, charge, &app.shutdown))
+        .await
+        .map_err(|_| deadline_exceeded(app))?
 }
 
 /// When the request must have its answer: its arrival plus the server's deadline.
@@ -333,11 +400,7 @@ pub fn deadline_of(req: &Request, app: &AppState) -> tokio::time::Instant {
 pub async fn read_limited(req: Request, app: &AppState) -> Result<(Parts, Bytes), ApiError> {
     let deadline = deadline_of(&req, app);
     let limit = app.config.max_body_bytes;
-    let declared = req
-        .headers()
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.trim().parse::<u64>().ok());
+    let declared = declared_length(req.headers());
     let (parts, body) = req.into_parts();
     if let Some(n) = declared.filter(|&n| n > limit as u64) {
         // Refuse without keeping a byte of it.
@@ -348,6 +411,40 @@ pub async fn read_limited(req: Request, app: &AppState) -> Result<(Parts, Bytes)
     }
     let bytes = read_body(body, limit, deadline, app).await?;
     Ok((parts, bytes))
+}
+
+/// [`read_limited`], charged first to the memory budget: `copies` × the body's declared
+/// length (the body limit when it declares none), for the buffer and the copies the
+/// route makes of it while it parses; `what` names it in a refusal. The reservation
+/// is cut down to what arrived, and returned to be grown by what follows.
+pub async fn read_charged(
+    req: Request,
+    app: &AppState,
+    copies: u64,
+    what: &str,
+) -> Result<(Parts, Bytes, Reservation), ApiError> {
+    let deadline = deadline_of(&req, app);
+    let limit = app.config.max_body_bytes as u64;
+    let size = declared_length(req.headers()).map_or(limit, |n| n.min(limit));
+    let mut memory = app.memory.empty();
+    charge_to(
+        app,
+        &mut memory,
+        &Charge::body(size * copies, what),
+        deadline,
+    )
+    .await?;
+    let (parts, bytes) = read_limited(req, app).await?;
+    memory.shrink_to(bytes.len() as u64 * copies);
+    Ok((parts, bytes, memory))
+}
+
+/// The body's `Content-Length`, if it declares one.
+fn declared_length(headers: &HeaderMap) -> Option<u64> {
+    headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<u64>().ok())
 }
 
 /// How much of a body declared too large is still read, and dropped, before the 413.

@@ -51,17 +51,19 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::post;
 use base64::Engine as _;
 use serde::Deserialize;
-use serde_json::Value;
+use serde_json::value::RawValue;
 
 use super::AppState;
 use super::admission::CostLimit;
 use super::error::ApiError;
 use super::extract::{
-    RequestInfo, content_type, deadline_exceeded, is_json, media_essence, negotiate, once,
-    parse_choice, parse_flag, parse_param, query_pairs, read_limited,
+    RequestInfo, blocking, charge_to, content_type, is_json, media_essence, negotiate, once,
+    parse_choice, parse_flag, parse_param, query_pairs, read_charged,
 };
 use super::job;
-use crate::format::ReadError;
+use super::memory::{Charge, Reservation};
+use crate::format::footprint::{self as decoding, Decoding, Family};
+use crate::format::{HitFormat, ReadError};
 use crate::grade::answer::{ReportForm, write_report, write_ungradable};
 use crate::grade::report::{LmsOptions, Visibility};
 use crate::grade::score::ScoringMode;
@@ -71,7 +73,8 @@ use crate::grade::{
 };
 use crate::json;
 use crate::render::{Renderer, Work};
-use crate::scene::{self, Scene};
+use crate::scene::footprint::{self as scene_footprint, JsonShape};
+use crate::scene::{self, Problem, Scene};
 
 /// The routes: `POST /v1/grade`.
 pub fn router() -> Router<AppState> {
@@ -279,9 +282,23 @@ impl GradeQuery {
     }
 }
 
-/// The request body as read, before anything in it is parsed.
+/// The request body as read, before anything in it is parsed, with the memory it is
+/// charged: the buffer and the copies parsing makes of its parts (three bodies' worth
+/// at most: the parts or the envelope's members, and a decoded `png_base64`).
+#[derive(Debug)]
+pub struct GradeBody {
+    /// The form it came in.
+    pub sent: GradeForm,
+    /// Its reservation in the memory budget.
+    pub memory: Reservation,
+}
+
+/// The copies of the body grading holds at most while it reads it.
+const BODY_COPIES: u64 = 3;
+
+/// The request body's two forms.
 #[derive(Debug, Clone)]
-pub enum GradeBody {
+pub enum GradeForm {
     /// The parts of a `multipart/form-data` form.
     Form {
         /// The `scene` part.
@@ -309,9 +326,12 @@ impl FromRequest<AppState> for GradeBody {
                 supported: GRADE_BODY_TYPES,
             });
         }
-        let (parts, bytes) = read_limited(req, app).await?;
+        let (parts, bytes, memory) = read_charged(req, app, BODY_COPIES, "the body").await?;
         if !multipart {
-            return Ok(GradeBody::Json(bytes));
+            return Ok(GradeBody {
+                sent: GradeForm::Json(bytes),
+                memory,
+            });
         }
         // The whole form is in memory and within the limit: splitting it is quick.
         let req = Request::from_parts(parts, Body::from(bytes));
@@ -353,11 +373,14 @@ impl FromRequest<AppState> for GradeBody {
         };
         let scene = scene.ok_or_else(|| missing("scene"))?;
         let (submission, hint) = submission.ok_or_else(|| missing("submission"))?;
-        Ok(GradeBody::Form {
-            scene,
-            submission,
-            hint,
-            tolerances,
+        Ok(GradeBody {
+            sent: GradeForm::Form {
+                scene,
+                submission,
+                hint,
+                tolerances,
+            },
+            memory,
         })
     }
 }
@@ -382,14 +405,32 @@ fn part_hint(media_type: Option<&str>, file_name: Option<&str>) -> Hint {
     }
 }
 
-/// The JSON request form.
+/// The JSON request form. The scene and the submission are kept as their text: the
+/// scene is read by [`scene::parse`] like any other (strictly: a duplicated key is a
+/// problem with its pointer), the submission by its reader, and neither becomes a JSON
+/// tree, which would be tens of times the size of its text.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct Envelope {
-    scene: Value,
-    submission: Value,
+    scene: Box<RawValue>,
+    submission: Box<RawValue>,
     #[serde(default)]
     tolerances: Option<Tolerances>,
+}
+
+/// The request's parts, split out and checked for structure, with what parsing them
+/// will cost.
+struct Split {
+    scene: Bytes,
+    submission: Bytes,
+    hint: Hint,
+    tolerances: Tolerances,
+    /// Where the scene lies in the body, for the pointers of its problems.
+    scene_at: &'static str,
+    /// Where the submission lies, for the pointer of a refusal.
+    submission_at: &'static str,
+    /// The scene's text, pre-scanned.
+    shape: JsonShape,
 }
 
 /// Everything grading needs, parsed and checked.
@@ -401,23 +442,13 @@ struct Prepared {
     scene_at: &'static str,
 }
 
-/// Parses the body in the order a client fixes things: the request's structure and the
+/// The first step, in the order a client fixes things: the request's structure and the
 /// tolerances (400: the JSON document or the form's parts, the query's tolerances on top
-/// of the body's), then the scene (against the server's limits), then the submission
-/// (against the scene's frame). CPU work proportional to the body: called off tokio's
-/// threads.
-fn prepare(
-    body: GradeBody,
-    query: &GradeQuery,
-    limits: &scene::Limits,
-) -> Result<Prepared, ApiError> {
-    // The scene and the submission as sent, with what is known of the submission's form.
-    enum Sent {
-        Form(Bytes, Bytes, Hint),
-        Json(Value, Value),
-    }
-    let (sent, tolerances) = match body {
-        GradeBody::Form {
+/// of the body's); then the scene's text is pre-scanned for the price of its parse.
+/// CPU work proportional to the body: called off tokio's threads.
+fn split(sent: GradeForm, query: &GradeQuery) -> Result<Split, ApiError> {
+    let (scene, submission, hint, tolerances, scene_at, submission_at) = match sent {
+        GradeForm::Form {
             scene,
             submission,
             hint,
@@ -427,40 +458,148 @@ fn prepare(
                 Some(b) => Some(strict::<Tolerances>(&b, "the `tolerances` part")?),
                 None => None,
             };
-            (Sent::Form(scene, submission, hint), tolerances)
+            (scene, submission, hint, tolerances, "", "")
         }
-        GradeBody::Json(bytes) => {
+        GradeForm::Json(bytes) => {
             let env: Envelope = strict(&bytes, "the body")?;
-            (Sent::Json(env.scene, env.submission), env.tolerances)
+            drop(bytes);
+            let scene = Bytes::from(String::from(Box::<str>::from(env.scene)));
+            let (submission, hint) =
+                submission_member(env.submission).map_err(ApiError::InvalidSubmission)?;
+            (
+                scene,
+                submission,
+                hint,
+                env.tolerances,
+                "/scene",
+                "/submission",
+            )
         }
     };
     let tolerances = query.tolerances.apply(tolerances.unwrap_or_default());
     tolerances
         .check()
         .map_err(|e| ApiError::BadRequest(e.to_string()))?;
-    let (scene, submission, hint, scene_at) = match sent {
-        Sent::Form(scene, submission, hint) => {
-            let scene = scene::parse(&scene, limits)
-                .map_err(|e| ApiError::scene(e, "the `scene` part", ""))?;
-            (scene, submission, hint, "")
-        }
-        Sent::Json(scene, submission) => {
-            let scene = scene::parse_value(scene, limits)
-                .map_err(|e| ApiError::scene(e, "the `scene` part", "/scene"))?;
-            let (submission, hint) =
-                submission_member(submission).map_err(ApiError::InvalidSubmission)?;
-            (scene, Bytes::from(submission), hint, "/scene")
-        }
-    };
-    let hint = query.format.unwrap_or(hint);
-    let submission = Submission::parse_for_frame(&submission, hint, scene.width, scene.height)
-        .map_err(ApiError::InvalidSubmission)?;
-    Ok(Prepared {
-        scene: Arc::new(scene),
+    let shape = JsonShape::scan(&scene);
+    Ok(Split {
+        scene,
         submission,
+        hint: query.format.unwrap_or(hint),
         tolerances,
         scene_at,
+        submission_at,
+        shape,
     })
+}
+
+/// The family a hint names, for the estimate of decoding (`None`: told from the bytes).
+fn family(hint: Hint) -> Option<Family> {
+    match hint {
+        Hint::Auto => None,
+        Hint::Png => Some(Family::Png),
+        Hint::Json => Some(Family::Hits(HitFormat::Json)),
+        Hint::Ndjson => Some(Family::Hits(HitFormat::Ndjson)),
+        Hint::Npy => Some(Family::Hits(HitFormat::Npy)),
+        Hint::Csv => Some(Family::Hits(HitFormat::Csv)),
+    }
+}
+
+/// What reading the submission for the scene's frame takes. Nothing much for a PNG of
+/// another size, or one whose header cannot be read: its reader refuses it from the
+/// header, with the grader's own error.
+fn decoding_of(s: &Split, scene: &Scene) -> Decoding {
+    let nothing = Decoding { peak: 0, held: 0 };
+    let family = family(s.hint);
+    let png = family == Some(Family::Png)
+        || (family.is_none() && s.submission.starts_with(crate::format::png::PNG_SIGNATURE));
+    if png && decoding::png_size(&s.submission).ok() != Some((scene.width, scene.height)) {
+        return nothing;
+    }
+    decoding::submission(&s.submission, family).unwrap_or(nothing)
+}
+
+/// The whole of grading, charged step by step to the request's `memory` before each
+/// allocates: parsing the scene, then reading the submission with the reference and the
+/// comparison (from the frame), then what is held while grading. Returns what grading
+/// needs, `memory` holding what grading it takes.
+async fn prepare(
+    app: &AppState,
+    body: GradeBody,
+    query: &GradeQuery,
+    deadline: tokio::time::Instant,
+) -> Result<(Prepared, Reservation), ApiError> {
+    let GradeBody { sent, mut memory } = body;
+    let q = query.clone();
+    let s = blocking(app, deadline, move || split(sent, &q)).await??;
+    // The body's copies stay until the submission is read.
+    let held = memory.bytes();
+    let parse = Charge::fields(
+        held + scene_footprint::parse_peak(&s.shape),
+        "parsing the scene",
+        scene_footprint::parse_fields(&s.shape),
+    )
+    .under(s.scene_at);
+    charge_to(app, &mut memory, &parse, deadline).await?;
+    let limits = app.config.limits();
+    let (s, scene) = blocking(app, deadline, move || {
+        let scene = scene::parse(&s.scene, &limits);
+        (s, scene)
+    })
+    .await?;
+    let scene = scene.map_err(|e| ApiError::scene(e, "the `scene` part", s.scene_at))?;
+    let built = scene_footprint::built(&scene);
+    let decode = decoding_of(&s, &scene);
+    let image = match family(s.hint) {
+        Some(f) => f == Family::Png,
+        None => s.submission.starts_with(crate::format::png::PNG_SIGNATURE),
+    };
+    let grading = crate::grade::footprint::grading(scene.width, scene.height, image);
+    let (w, h) = (scene.width, scene.height);
+    let frame = |at: &str| {
+        Problem::new(
+            format!("{}/image/{at}", s.scene_at),
+            format!("a frame of {w} × {h} pixels drives the memory its grading needs"),
+        )
+    };
+    let reading = Charge::fields(
+        held + built + decode.peak + grading,
+        "grading the submission",
+        vec![
+            Problem::new(
+                s.submission_at,
+                format!(
+                    "reading it takes up to {} bytes, before the reference and the comparison",
+                    decode.peak
+                ),
+            ),
+            frame("width"),
+            frame("height"),
+        ],
+    );
+    charge_to(app, &mut memory, &reading, deadline).await?;
+    let Split {
+        submission,
+        hint,
+        tolerances,
+        scene_at,
+        ..
+    } = s;
+    let submission = blocking(app, deadline, move || {
+        Submission::parse_for_frame(&submission, hint, w, h)
+    })
+    .await?
+    .map_err(ApiError::InvalidSubmission)?;
+    // The body is gone; the submission is read.
+    memory.shrink_to(built + decode.held + grading);
+    Ok((
+        Prepared {
+            scene: Arc::new(scene),
+            submission,
+            tolerances,
+            scene_at,
+        },
+        memory,
+    ))
 }
 
 /// `what` (the body, a part) read strictly as one `T`. Bad syntax is 400 `invalid-json`
@@ -492,49 +631,52 @@ const ENCODED: [(&str, Hint); 4] = [
 ];
 
 /// The submission of the JSON form as bytes and their form: hit data as JSON (an object
-/// or an array), or `{"png_base64" | "npy_base64" | "csv" | "ndjson": "…"}`.
-fn submission_member(v: Value) -> Result<(Vec<u8>, Hint), GradeError> {
+/// or an array, its text as sent), or `{"png_base64" | "npy_base64" | "csv" | "ndjson":
+/// "…"}`.
+fn submission_member(raw: Box<RawValue>) -> Result<(Bytes, Hint), GradeError> {
     let bad = |at: &str, message: &str| {
         GradeError::Unreadable(ReadError::BadValue {
             at: at.to_owned(),
             message: message.to_owned(),
         })
     };
-    let encoded = match &v {
-        Value::Object(m) if m.len() == 1 => m.iter().next().and_then(|(k, val)| {
-            ENCODED
-                .iter()
-                .find(|(name, _)| name == k)
-                .map(|&(name, hint)| (name, hint, val))
-        }),
-        _ => None,
+    let text = raw.get();
+    let encoded = if text.starts_with('{') {
+        // The members as slices of the text: nothing of a large document is copied.
+        serde_json::from_str::<std::collections::BTreeMap<&str, &RawValue>>(text)
+            .ok()
+            .filter(|m| m.len() == 1)
+            .and_then(|m| {
+                let (k, v) = m.into_iter().next()?;
+                let &(name, hint) = ENCODED.iter().find(|(name, _)| *name == k)?;
+                Some((name, hint, v))
+            })
+    } else {
+        None
     };
-    match (encoded, &v) {
-        (Some((name, hint, val)), _) => {
-            let at = format!("submission.{name}");
-            let Value::String(s) = val else {
-                return Err(bad(&at, "must be a string"));
-            };
-            if name.ends_with("_base64") {
-                // Tolerate the line breaks `base64` puts in by default.
-                let compact: Vec<u8> = s.bytes().filter(|b| !b.is_ascii_whitespace()).collect();
-                let bytes = base64::engine::general_purpose::STANDARD
-                    .decode(&compact)
-                    .map_err(|e| bad(&at, &format!("is not valid base64: {e}")))?;
-                Ok((bytes, hint))
-            } else {
-                Ok((s.clone().into_bytes(), hint))
-            }
+    if let Some((name, hint, val)) = encoded {
+        let at = format!("submission.{name}");
+        let s: String =
+            serde_json::from_str(val.get()).map_err(|_| bad(&at, "must be a string"))?;
+        if name.ends_with("_base64") {
+            // Tolerate the line breaks `base64` puts in by default.
+            let compact: Vec<u8> = s.bytes().filter(|b| !b.is_ascii_whitespace()).collect();
+            drop(s);
+            let bytes = base64::engine::general_purpose::STANDARD
+                .decode(&compact)
+                .map_err(|e| bad(&at, &format!("is not valid base64: {e}")))?;
+            return Ok((Bytes::from(bytes), hint));
         }
-        (None, Value::Object(_) | Value::Array(_)) => serde_json::to_vec(&v)
-            .map(|b| (b, Hint::Json))
-            .map_err(|e| bad("submission", &e.to_string())),
-        (None, _) => Err(bad(
-            "submission",
-            "must be hit data (a JSON document or array of pixels), or an object with one of \
-             `png_base64`, `npy_base64`, `csv`, `ndjson`",
-        )),
+        return Ok((Bytes::from(s), hint));
     }
+    if text.starts_with('{') || text.starts_with('[') {
+        return Ok((Bytes::from(String::from(Box::<str>::from(raw))), Hint::Json));
+    }
+    Err(bad(
+        "submission",
+        "must be hit data (a JSON document or array of pixels), or an object with one of \
+         `png_base64`, `npy_base64`, `csv`, `ndjson`",
+    ))
 }
 
 fn write_failed(e: serde_json::Error) -> ApiError {
@@ -550,18 +692,9 @@ async fn grade(
     body: GradeBody,
 ) -> Result<Response, ApiError> {
     let answer = query.answer(&headers)?;
-    let limits = app.config.limits();
     let deadline = tokio::time::Instant::from_std(info.start + app.config.deadline());
-    let q = query.clone();
-    let prepared = tokio::time::timeout_at(
-        deadline,
-        tokio::task::spawn_blocking(move || prepare(body, &q, &limits)),
-    )
-    .await
-    .map_err(|_| deadline_exceeded(&app))?
-    .map_err(|e| ApiError::Internal(format!("the parsing task failed: {e}")))?;
     let lms = lms_options(&query);
-    let prepared = match prepared {
+    let (prepared, memory) = match prepare(&app, body, &query, deadline).await {
         Err(ApiError::InvalidSubmission(e)) if answer.is_lms() => {
             return ungradable_answer(&e, answer, &lms);
         }
@@ -587,6 +720,8 @@ async fn grade(
     let deadline_len = app.config.deadline();
     let (cost, metrics) = (CostLimit::new(&app.config), app.metrics.clone());
     let (bytes, verdict) = job::run(&app, &info, "grade", move |cancel| {
+        // Given back when the work ends.
+        let _memory = memory;
         let Prepared {
             scene,
             submission,
@@ -676,30 +811,28 @@ mod tests {
         assert_eq!(part_hint(Some("text/plain"), Some("notes")), Hint::Auto);
     }
 
+    fn member(text: &str) -> Result<(Bytes, Hint), GradeError> {
+        submission_member(RawValue::from_string(text.to_owned()).unwrap())
+    }
+
     #[test]
     fn json_submissions() {
-        let (b, h) = submission_member(serde_json::json!({"png_base64": "iVBO\nRw=="})).unwrap();
-        assert_eq!(
-            (b.as_slice(), h),
-            (&[0x89, b'P', b'N', b'G'][..], Hint::Png)
-        );
-        let (b, h) = submission_member(serde_json::json!({"csv": "u,v\n"})).unwrap();
-        assert_eq!((b.as_slice(), h), (&b"u,v\n"[..], Hint::Csv));
-        let (_, h) = submission_member(serde_json::json!([{"hit": false}])).unwrap();
+        let (b, h) = member(r#"{"png_base64": "iVBO\nRw=="}"#).unwrap();
+        assert_eq!((&b[..], h), (&[0x89, b'P', b'N', b'G'][..], Hint::Png));
+        let (b, h) = member(r#"{"csv": "u,v\n"}"#).unwrap();
+        assert_eq!((&b[..], h), (&b"u,v\n"[..], Hint::Csv));
+        let (b, h) = member(r#"[{"hit": false}]"#).unwrap();
+        assert_eq!((&b[..], h), (&br#"[{"hit": false}]"#[..], Hint::Json));
+        let (_, h) = member(r#"{"pixels": []}"#).unwrap();
         assert_eq!(h, Hint::Json);
-        let (_, h) = submission_member(serde_json::json!({"pixels": []})).unwrap();
-        assert_eq!(h, Hint::Json);
-        assert!(matches!(
-            submission_member(serde_json::json!({"png_base64": "!!"})),
-            Err(GradeError::Unreadable(ReadError::BadValue { .. }))
-        ));
-        assert!(matches!(
-            submission_member(serde_json::json!({"png_base64": 5})),
-            Err(GradeError::Unreadable(ReadError::BadValue { .. }))
-        ));
-        assert!(matches!(
-            submission_member(serde_json::json!("x")),
-            Err(GradeError::Unreadable(ReadError::BadValue { .. }))
-        ));
+        for bad in [r#"{"png_base64": "!!"}"#, r#"{"png_base64": 5}"#, r#""x""#] {
+            assert!(
+                matches!(
+                    member(bad),
+                    Err(GradeError::Unreadable(ReadError::BadValue { .. }))
+                ),
+                "{bad}"
+            );
+        }
     }
 }

@@ -12,7 +12,8 @@
 //! | `raytile_renders_in_flight` | gauge | |
 //! | `raytile_queue_depth` | gauge | |
 //! | `raytile_renders_parked` | gauge | |
-//! | `raytile_rejected_requests_total` | counter | `reason` (saturated, shutting_down, deadline, over_budget) |
+//! | `raytile_rejected_requests_total` | counter | `reason` (saturated, shutting_down, deadline, over_budget, memory) |
+//! | `raytile_memory_reserved_bytes`, `raytile_memory_budget_bytes` | gauge | |
 //! | `raytile_render_slots`, `raytile_queue_capacity` | gauge | |
 
 use axum::Router;
@@ -53,11 +54,22 @@ pub struct Metrics {
     pub parked: IntGauge,
     /// Requests refused by load shedding, by reason.
     pub rejected: IntCounterVec,
+    /// Bytes reserved in the memory budget now (`super::memory`).
+    pub memory_reserved: IntGauge,
+    /// The memory budget, `--memory-bytes`.
+    pub memory_budget: IntGauge,
 }
 
 /// The `reason` labels of `raytile_rejected_requests_total`; `over_budget` counts the
-/// 422s of renders whose estimated rays exceed `--max-rays`.
-pub const REJECT_REASONS: [&str; 4] = ["saturated", "shutting_down", "deadline", "over_budget"];
+/// 422s of renders whose estimated rays exceed `--max-rays`, `memory` the requests
+/// refused by the memory budget (never fitting, or 503 while it is taken).
+pub const REJECT_REASONS: [&str; 5] = [
+    "saturated",
+    "shutting_down",
+    "deadline",
+    "over_budget",
+    "memory",
+];
 
 /// Render durations from 10 ms to about 10 minutes.
 const DURATION_BUCKETS_SECONDS: [f64; 14] = [
@@ -100,6 +112,14 @@ impl Metrics {
             ),
             &["reason"],
         )?;
+        let memory_reserved = IntGauge::new(
+            "raytile_memory_reserved_bytes",
+            "Bytes reserved in the memory budget by the requests in flight.",
+        )?;
+        let memory_budget = IntGauge::new(
+            "raytile_memory_budget_bytes",
+            "The memory budget requests are charged against.",
+        )?;
         let slots = IntGauge::new("raytile_render_slots", "Renders allowed to trace at once.")?;
         let capacity = IntGauge::new(
             "raytile_queue_capacity",
@@ -120,6 +140,8 @@ impl Metrics {
         registry.register(Box::new(queue_depth.clone()))?;
         registry.register(Box::new(parked.clone()))?;
         registry.register(Box::new(rejected.clone()))?;
+        registry.register(Box::new(memory_reserved.clone()))?;
+        registry.register(Box::new(memory_budget.clone()))?;
         registry.register(Box::new(slots))?;
         registry.register(Box::new(capacity))?;
         Ok(Metrics {
@@ -132,6 +154,8 @@ impl Metrics {
             queue_depth,
             parked,
             rejected,
+            memory_reserved,
+            memory_budget,
         })
     }
 

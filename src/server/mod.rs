@@ -9,7 +9,8 @@
 //!   [`metrics`];
 //! - the machinery they share: [`connection`] (the accept loop: connection cap, header
 //!   and idle timeouts), [`extract`] (body, query, `Accept`), [`admission`]
-//!   (render slots and the queue), [`stream`] (rayon thread → response body), [`job`]
+//!   (render slots and the queue), [`memory`] (the memory budget every request is
+//!   charged against), [`stream`] (rayon thread → response body), [`job`]
 //!   (CPU work that answers in one piece, admitted like a render),
 //!   [`error`] (every failure → `application/problem+json`, in one place),
 //!   [`observe`] (request ids, log lines, request counts), [`shutdown`] (the phases of
@@ -22,6 +23,7 @@ pub mod extract;
 pub mod grade;
 pub mod health;
 pub mod job;
+pub mod memory;
 pub mod metrics;
 pub mod observe;
 pub mod render;
@@ -44,6 +46,7 @@ use tower_http::catch_panic::CatchPanicLayer;
 use crate::config::ServeArgs;
 use crate::render::Scheduler;
 use admission::Admission;
+use memory::MemoryBudget;
 use metrics::Metrics;
 use shutdown::{Phase, Shutdown};
 
@@ -64,6 +67,8 @@ pub struct Shared {
     pub pool: Arc<Scheduler>,
     /// Render slots and the queue.
     pub admission: Admission,
+    /// The memory budget.
+    pub memory: MemoryBudget,
     /// The metrics.
     pub metrics: Metrics,
     /// Running, draining or stopping.
@@ -80,6 +85,7 @@ impl Deref for AppState {
 impl AppState {
     /// Starts the rayon pool and sets up admission and metrics for `config`.
     pub fn new(config: ServeArgs) -> anyhow::Result<AppState> {
+        config.check().map_err(anyhow::Error::msg)?;
         let slots = config.max_renders();
         let metrics = Metrics::new(slots, config.queue).context("cannot register the metrics")?;
         let pool = rayon::ThreadPoolBuilder::new()
@@ -92,6 +98,7 @@ impl AppState {
             .context("cannot start the trace threads")?;
         Ok(AppState(Arc::new(Shared {
             admission: Admission::new(slots, config.queue, metrics.clone()),
+            memory: MemoryBudget::new(config.memory_bytes, config.queue, metrics.clone()),
             config,
             pool: Scheduler::new(pool),
             metrics,
@@ -133,6 +140,7 @@ pub async fn serve(config: ServeArgs) -> anyhow::Result<()> {
         %addr,
         max_renders = state.config.max_renders(),
         queue = state.config.queue,
+        memory_bytes = state.config.memory_bytes,
         threads = state.pool.current_num_threads(),
         "listening on http://{addr}"
     );

@@ -48,7 +48,10 @@ use tokio::sync::oneshot;
 use super::AppState;
 use super::admission::{CostLimit, RenderSlot};
 use super::error::ApiError;
-use super::extract::{Accepted, Offers, RegionQuery, RequestInfo, SceneBody, deadline_exceeded};
+use super::extract::{
+    Accepted, Offers, RegionQuery, RequestInfo, SceneBody, charge_to, deadline_exceeded,
+};
+use super::memory::{Charge, Reservation};
 use super::shutdown::Phase;
 use super::stream::{self, Aborter, BodyWriter, Room};
 use crate::format::{HitFormat, png};
@@ -174,6 +177,8 @@ async fn start(
 ) -> Result<Response, ApiError> {
     let region = query.within(&body.scene)?;
     let deadline = info.start + app.config.deadline();
+    let mut memory = body.memory;
+    charge_output(&app, &body.scene, &mut memory, region, output, deadline).await?;
     let queued = Instant::now();
     let slot = tokio::time::timeout_at(deadline.into(), app.admission.admit(&app.shutdown))
         .await
@@ -195,6 +200,7 @@ async fn start(
         writer,
         trailers,
         slot,
+        memory,
         done,
         cost,
         verdict: verdict_tx,
@@ -239,6 +245,43 @@ async fn start(
         );
     }
     Ok(res)
+}
+
+/// Grows the scene's reservation by what streaming `region` as `output` holds
+/// ([`crate::output::footprint`]), before a render slot is taken: a frame too wide to
+/// stream within the budget is refused with 422 and `/image/width`.
+async fn charge_output(
+    app: &AppState,
+    scene: &Scene,
+    memory: &mut Reservation,
+    region: Rect,
+    output: Output,
+    deadline: Instant,
+) -> Result<(), ApiError> {
+    let format = match output {
+        Output::Png => None,
+        Output::Hits(f) => Some(f),
+    };
+    let streaming = crate::output::footprint(
+        scene,
+        format,
+        region,
+        app.config.tile,
+        app.pool.current_num_threads(),
+        stream::IN_FLIGHT_BYTES,
+    );
+    let charge = Charge::fields(
+        memory.bytes() + streaming,
+        "streaming the answer",
+        vec![crate::scene::Problem::new(
+            "/image/width",
+            format!(
+                "a row of {} pixels drives the memory its answer holds while it streams",
+                region.width
+            ),
+        )],
+    );
+    charge_to(app, memory, &charge, deadline.into()).await
 }
 
 fn ms(d: Duration) -> f64 {
@@ -316,6 +359,8 @@ struct Job {
     writer: BodyWriter,
     trailers: bool,
     slot: RenderSlot,
+    /// The render's memory, given back when the job ends.
+    memory: Reservation,
     done: oneshot::Sender<()>,
     cost: CostLimit,
     /// Whether the render may start: the cost pilot's answer, sent before any tracing.
@@ -349,6 +394,7 @@ impl Job {
             writer,
             trailers,
             slot,
+            memory: _memory,
             done,
             cost,
             verdict,

@@ -15,6 +15,7 @@
 //! - `lecture`: the lecture's worked example;
 //! - `lms`: Gradescope's and PrairieLearn's results files (ungradable submissions,
 //!   folders, visibility) and the scoring modes, on the command line and over HTTP;
+//! - `memory`: the memory budget, its refusals, its queue and its ledger;
 //! - `properties`: BVH against brute force, invariance, determinism, regions;
 //! - `schema`: the JSON Schema and the parser agree;
 //! - `openapi`: `api/openapi.yaml` and the server agree;
@@ -38,6 +39,7 @@ mod grade;
 mod imports;
 mod lecture;
 mod lms;
+mod memory;
 mod openapi;
 mod properties;
 mod schema;
