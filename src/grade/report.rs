@@ -13,7 +13,7 @@ use base64::Engine as _;
 use serde::Serialize;
 use serde_json::{Value, json};
 
-use super::compare::{Comparison, HitCounts, PixelValue, WorstPixel};
+use super::compare::{Comparison, HitCounts, LinearCounts, PixelValue, WorstPixel};
 use super::image::RgbImage;
 use super::metrics::{ErrorStats, FlipStats};
 use super::{GradeOptions, Tolerances};
@@ -66,6 +66,12 @@ pub struct Report {
     /// Failing pixels per check (hit data only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub hits: Option<HitCounts>,
+    /// Linear error statistics (float images only: PFM, OpenEXR).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub linear: Option<LinearCounts>,
+    /// What the grader warns of besides the verdict (a JPEG's lossy compression).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
     /// The worst pixels, worst first: failing ones, then those that differ but pass.
     pub worst: Vec<WorstPixel>,
     /// The difference image as a base64 PNG, when asked for.
@@ -105,6 +111,10 @@ impl Report {
         let share = cmp.failing as f64 / pixels.max(1) as f64;
         let kind = if cmp.hits.is_some() { "hits" } else { "image" };
         let what = match &cmp.hits {
+            None if cmp.linear.is_some() => format!(
+                "differ from the reference's linear radiance by more than {} + {} × its value in some channel",
+                tol.linear_abs, tol.linear_rel
+            ),
             None => format!(
                 "differ from the reference by more than {}/255 in some channel",
                 tol.colour_abs
@@ -143,6 +153,8 @@ impl Report {
             tolerances: tol.clone(),
             image,
             hits: cmp.hits,
+            linear: cmp.linear,
+            warnings: Vec::new(),
             worst: cmp.worst,
             diff_png_base64: None,
             diff: cmp.diff,
@@ -178,6 +190,10 @@ fn opt_vec(v: &Option<[f64; 3]>) -> String {
 fn value_text(p: &PixelValue) -> String {
     match p {
         PixelValue::Colour { rgb } => format!("rgb({}, {}, {})", rgb[0], rgb[1], rgb[2]),
+        PixelValue::Linear { linear } => {
+            let c = linear.map(|x| x.map_or("not finite".into(), |x| format!("{x}")));
+            format!("linear({}, {}, {})", c[0], c[1], c[2])
+        }
         PixelValue::Hit { hit: false, .. } => "miss".into(),
         PixelValue::Hit {
             object,
@@ -200,6 +216,9 @@ fn worst_text(r: &Report, limit: usize) -> String {
         let mut detail = Vec::new();
         if let Some(e) = w.colour_error {
             detail.push(format!("off by {e}/255"));
+        }
+        if let Some(e) = w.linear_error {
+            detail.push(format!("linear difference {e:.3e}"));
         }
         if let Some(e) = w.lambda_rel_error {
             detail.push(format!("λ relative error {e:.3e}"));
@@ -233,6 +252,9 @@ fn worst_text(r: &Report, limit: usize) -> String {
 pub fn to_text(r: &Report) -> String {
     let mut o = String::new();
     let _ = writeln!(o, "{}", r.summary);
+    for w in &r.warnings {
+        let _ = writeln!(o, "Warning: {w}");
+    }
     let t = &r.tolerances;
     let _ = writeln!(
         o,
@@ -243,6 +265,17 @@ pub fn to_text(r: &Report) -> String {
         num(t.max_fail_share),
         if t.edge_forgiving { "on" } else { "off" }
     );
+    if let Some(l) = &r.linear {
+        let _ = writeln!(
+            o,
+            "Linear radiance: tolerance {} + {} × the reference per channel; max difference {:.3e}, mean {:.3e}, {} channel(s) not finite",
+            num(t.linear_abs),
+            num(t.linear_rel),
+            l.max_abs_error,
+            l.mean_abs_error,
+            l.non_finite
+        );
+    }
     if let Some(m) = &r.image {
         let _ = writeln!(
             o,

@@ -2,10 +2,12 @@
 //! which finish in any order on any thread, into the order a format needs
 //! ([`RowAssembler`]) and hand the rows to the writers of [`crate::format`].
 
+pub mod frame;
 pub mod hits;
 pub mod png;
 pub mod rows;
 
+pub use frame::FrameSink;
 pub use hits::HitSink;
 pub use png::PngSink;
 pub use rows::RowAssembler;

@@ -61,7 +61,7 @@ use super::job;
 use crate::format::ReadError;
 use crate::grade::answer::{ReportForm, write_report};
 use crate::grade::{
-    self, GradeError, GradeOptions, Hint, Submission, ToleranceOverrides, Tolerances,
+    self, GradeError, GradeOptions, Hint, Submission, ToleranceOverrides, Tolerances, submission,
 };
 use crate::json;
 use crate::render::{Renderer, Work};
@@ -432,12 +432,7 @@ fn strict<T: serde::de::DeserializeOwned>(bytes: &[u8], what: &'static str) -> R
 }
 
 /// The members that carry a submission file inside the JSON form, and its form.
-const ENCODED: [(&str, Hint); 4] = [
-    ("png_base64", Hint::Png),
-    ("npy_base64", Hint::Npy),
-    ("csv", Hint::Csv),
-    ("ndjson", Hint::Ndjson),
-];
+const ENCODED: &[(&str, Hint)] = &submission::ENCODED_MEMBERS;
 
 /// The submission of the JSON form as bytes and their form: hit data as JSON (an object
 /// or an array), or `{"png_base64" | "npy_base64" | "csv" | "ndjson": "…"}`.
@@ -457,6 +452,9 @@ fn submission_member(v: Value) -> Result<(Vec<u8>, Hint), GradeError> {
         }),
         _ => None,
     };
+    if let (None, Value::Object(m)) = (encoded, &v) {
+        submission::check_submission_members(m)?;
+    }
     match (encoded, &v) {
         (Some((name, hint, val)), _) => {
             let at = format!("submission.{name}");
@@ -479,8 +477,7 @@ fn submission_member(v: Value) -> Result<(Vec<u8>, Hint), GradeError> {
             .map_err(|e| bad("submission", &e.to_string())),
         (None, _) => Err(bad(
             "submission",
-            "must be hit data (a JSON document or array of pixels), or an object with one of \
-             `png_base64`, `npy_base64`, `csv`, `ndjson`",
+            &format!("must be {}", submission::submission_members()),
         )),
     }
 }
