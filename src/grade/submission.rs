@@ -212,9 +212,10 @@ impl SubmittedImage {
     pub fn warnings(&self) -> Vec<String> {
         match self.format {
             RasterFormat::Jpeg => vec![
-                "the submission is a JPEG: its compression is lossy and changes pixels \
-                 slightly, so it rarely matches exactly; hand in a PNG or PPM to be graded \
-                 without that loss"
+                "the submission is a JPEG, whose lossy compression changes pixels slightly: \
+                 it rarely matches the reference exactly (even at quality 100 without chroma \
+                 subsampling, pixels are off by up to about 3/255); hand in a PNG or PPM to be \
+                 graded without that loss"
                     .to_owned(),
             ],
             _ => Vec::new(),
@@ -351,6 +352,7 @@ impl From<ReadError> for GradeError {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::format::RasterFormat;
     use crate::format::npy::{npy_header, npy_record};
 
     fn pixels(h: &HitData) -> Vec<SubmittedHit> {
@@ -526,6 +528,54 @@ mod tests {
             matches!(e, GradeError::Unreadable(ReadError::Npy(_))),
             "{e}"
         );
+    }
+
+    #[test]
+    fn an_image_signature_decides_whatever_the_hint_says() {
+        let p3 = b"P3\n1 1\n255\n1 2 3\n";
+        for hint in [Hint::Auto, Hint::Png, Hint::Jpeg, Hint::Csv, Hint::Json] {
+            match Submission::parse(p3, hint).unwrap() {
+                Submission::Image(img) => {
+                    assert_eq!(img.format, RasterFormat::Pnm);
+                    assert_eq!(img.rgb8().unwrap().data, vec![1, 2, 3]);
+                    assert!(img.linear().is_none() && img.warnings().is_empty());
+                }
+                Submission::Hits(_) => panic!("hits"),
+            }
+        }
+        // Without a signature an image hint names the decoder, which says what is wrong.
+        let e = Submission::parse(b"u,v,hit\n", Hint::Tga).unwrap_err();
+        assert!(e.to_string().starts_with("the TGA file is corrupt"), "{e}");
+        assert_eq!(Hint::from_name("JPG"), Some(Hint::Jpeg));
+        assert_eq!(Hint::from_name("pgm"), Some(Hint::Ppm));
+        assert_eq!(Hint::from_media_type("image/x-exr"), Hint::Exr);
+        assert_eq!(Hint::from_path(std::path::Path::new("out.pfm")), Hint::Pfm);
+        for f in RasterFormat::ALL {
+            assert_eq!(Hint::from(f).raster(), Some(f));
+        }
+    }
+
+    #[test]
+    fn a_submission_object_s_unknown_member_lists_every_accepted_name() {
+        let m = |v: serde_json::Value| v.as_object().unwrap().clone();
+        assert!(
+            check_submission_members(&m(serde_json::json!({"pixels": [], "width": 1}))).is_ok()
+        );
+        let e = check_submission_members(&m(serde_json::json!({"pgm": "P2"}))).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            text.starts_with("submission.pgm: is not an accepted member"),
+            "{text}"
+        );
+        for (name, _) in ENCODED_MEMBERS {
+            assert!(text.contains(&format!("`{name}`")), "{name}: {text}");
+        }
+        for name in json::DOCUMENT_FIELDS {
+            assert!(text.contains(&format!("`{name}`")), "{name}: {text}");
+        }
+        let e =
+            check_submission_members(&m(serde_json::json!({"csv": "", "pixels": []}))).unwrap_err();
+        assert!(e.to_string().contains("must be the only member"), "{e}");
     }
 
     #[test]

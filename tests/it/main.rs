@@ -3,6 +3,8 @@
 //! - `support_server`: a `TestApp` (the real router on a loopback port), scene makers;
 //! - `cli`: `raytile render | hits | validate` as a user runs them;
 //! - `cost`: the ray budget, its refusals and its cut renders;
+//! - `formats`: every submission format, from files written by other encoders
+//!   (`tests/fixtures/submissions/`), by `raytile grade` and `POST /v1/grade`;
 //! - `cluster`: two `raytile serve` processes behind nginx, and `render --servers`
 //!   finishing a frame while a replica dies (the nginx test is ignored unless asked for:
 //!   `bash .ci/test-all` installs nginx and runs it);
@@ -25,6 +27,7 @@ mod support_server;
 mod cli;
 mod cluster;
 mod cost;
+mod formats;
 mod geometry;
 mod grade;
 mod imports;
