@@ -6,6 +6,11 @@
 //! reading takes any compression and half or full floats with R, G, B and optionally
 //! A channels (decoded by [`super::raster::decode`] under its memory limit); an alpha
 //! below 1 is refused, since the grader cannot tell what it should show through.
+//!
+//! The codec sizes its decompression buffers from the headers without the caller's
+//! limit, so [`check_headers`] first reads the headers with the `exr` crate and refuses
+//! a file whose blocks or pixels would take more than the limit (a file of a few
+//! kilobytes can otherwise claim gigabytes).
 
 use std::io::Cursor;
 
@@ -36,6 +41,45 @@ pub fn write(img: &LinearImage) -> Result<Vec<u8>, String> {
         )
         .map_err(|e| e.to_string())?;
     Ok(out.into_inner())
+}
+
+/// Refuses, from its headers alone, a file whose pixels or largest block would take
+/// more than `limit_bytes` to decompress; deep data is no image to grade.
+pub(super) fn check_headers(bytes: &[u8], limit_bytes: usize) -> Result<(), ReadError> {
+    let corrupt = |message: String| ReadError::CorruptImage {
+        format: "OpenEXR",
+        message,
+    };
+    let too_large = ReadError::TooLarge {
+        format: "OpenEXR",
+        limit_bytes,
+    };
+    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
+        .map_err(|e| corrupt(e.to_string()))?;
+    let mut total = 0usize;
+    for h in meta.headers.iter() {
+        if h.deep {
+            return Err(corrupt("it holds deep data, not an image".into()));
+        }
+        let (w, hh) = (h.layer_size.width(), h.layer_size.height());
+        let (bw, bh) = match h.blocks {
+            exr::meta::BlockDescription::Tiles(t) => (t.tile_size.width(), t.tile_size.height()),
+            exr::meta::BlockDescription::ScanLines => (w, h.compression.scan_lines_per_block()),
+        };
+        // A bound on both the layer's pixels and its largest block, in checked
+        // arithmetic: the sizes are the file's word.
+        let bytes = h
+            .channels
+            .bytes_per_pixel
+            .checked_mul(w.max(bw))
+            .and_then(|x| x.checked_mul(hh.max(bh)))
+            .ok_or_else(|| too_large.clone())?;
+        total = total.checked_add(bytes).ok_or_else(|| too_large.clone())?;
+    }
+    if total > limit_bytes {
+        return Err(too_large);
+    }
+    Ok(())
 }
 
 /// The linear RGB of a decoded EXR image, refusing pixels that are not opaque.

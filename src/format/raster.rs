@@ -282,6 +282,9 @@ pub fn decode(
     if format == RasterFormat::Pfm {
         return pfm::read(bytes, limits.frame, limits.max_bytes).map(Raster::Linear);
     }
+    if format == RasterFormat::Exr {
+        exr::check_headers(bytes, limits.max_bytes)?;
+    }
     let err = decoding(format, limits.max_bytes);
     let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format.codec());
     let mut l = image::Limits::default();
@@ -533,6 +536,19 @@ mod tests {
             .unwrap();
         let e = decode(rgba.get_ref(), RasterFormat::Exr, &none()).unwrap_err();
         assert!(matches!(e, ReadError::NotOpaque { u: 0, v: 0, .. }), "{e}");
+    }
+
+    #[test]
+    fn an_exr_whose_blocks_claim_gigabytes_is_refused_before_decoding() {
+        // Found by the submission fuzz target: 1.9 kB whose header makes the codec
+        // allocate 1.5 GB for one block.
+        let bytes = std::fs::read(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/fixtures/submissions/bad-inflate.exr"
+        ))
+        .unwrap();
+        let e = decode(&bytes, RasterFormat::Exr, &DecodeLimits::for_frame(32, 24)).unwrap_err();
+        assert!(matches!(e, ReadError::TooLarge { .. }), "{e}");
     }
 
     #[test]
