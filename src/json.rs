@@ -2,6 +2,14 @@
 //! field at fault (its path, from `serde_path_to_error`) and serde_json's message
 //! without the position it appends, since every caller reports line and column apart.
 //! A leaf: it depends on no other module.
+//!
+//! Scenes are read strictly ([`from_slice`]). Hit data may also hold the non-finite
+//! numbers Python's `json.dump` writes for a miss (`NaN`, `Infinity`, `-Infinity`):
+//! [`from_slice_non_finite`] reads those as strings of the same length, which a field
+//! that accepts them turns back into numbers ([`non_finite`]), so every position in an
+//! error is still the one in the bytes as sent.
+
+use std::borrow::Cow;
 
 use serde::de::DeserializeOwned;
 
@@ -42,6 +50,79 @@ pub fn from_slice<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, Failure> {
     })?;
     de.end().map_err(|error| Failure { error, path: None })?;
     Ok(value)
+}
+
+/// The strings [`from_slice_non_finite`] puts in place of the bare words, each as long
+/// as the word it replaces (quotes included): `NaN`, `Infinity`, `-Infinity`.
+pub const NON_FINITE_STAND_INS: [(&str, f64); 3] = [
+    ("N", f64::NAN),
+    ("Infini", f64::INFINITY),
+    ("-Infini", f64::NEG_INFINITY),
+];
+
+/// The number a string means where a number is expected: the stand-ins of
+/// [`NON_FINITE_STAND_INS`], and the words themselves, quoted.
+pub fn non_finite(s: &str) -> Option<f64> {
+    match s {
+        "NaN" => Some(f64::NAN),
+        "Infinity" => Some(f64::INFINITY),
+        "-Infinity" => Some(f64::NEG_INFINITY),
+        other => NON_FINITE_STAND_INS
+            .iter()
+            .find(|(k, _)| *k == other)
+            .map(|&(_, x)| x),
+    }
+}
+
+/// `bytes` with every bare `NaN`, `Infinity` and `-Infinity` outside strings replaced by
+/// its stand-in string of the same length; borrowed when there is none.
+fn quote_non_finite(bytes: &[u8]) -> Cow<'_, [u8]> {
+    const WORDS: [&[u8]; 3] = [b"NaN", b"Infinity", b"-Infinity"];
+    let mut out: Option<Vec<u8>> = None;
+    let (mut in_string, mut escaped) = (false, false);
+    let mut i = 0;
+    while i < bytes.len() {
+        let b = bytes[i];
+        if in_string {
+            match (escaped, b) {
+                (true, _) => escaped = false,
+                (false, b'\\') => escaped = true,
+                (false, b'"') => in_string = false,
+                _ => {}
+            }
+            i += 1;
+            continue;
+        }
+        if b == b'"' {
+            in_string = true;
+            i += 1;
+            continue;
+        }
+        let word = WORDS.iter().position(|w| {
+            bytes[i..].starts_with(w)
+                && !bytes
+                    .get(i + w.len())
+                    .is_some_and(|c| c.is_ascii_alphanumeric() || *c == b'_')
+        });
+        if let Some(k) = word {
+            let len = WORDS[k].len();
+            let stand_in = format!("\"{}\"", NON_FINITE_STAND_INS[k].0);
+            debug_assert_eq!(stand_in.len(), len);
+            out.get_or_insert_with(|| bytes.to_vec())[i..i + len]
+                .copy_from_slice(stand_in.as_bytes());
+            i += len;
+            continue;
+        }
+        i += 1;
+    }
+    out.map_or(Cow::Borrowed(bytes), Cow::Owned)
+}
+
+/// [`from_slice`] for data whose numbers may be `NaN`, `Infinity` or `-Infinity` (bare,
+/// as Python writes them): they reach `T` as strings its fields read with
+/// [`non_finite`]. Never for scenes, which must be finite.
+pub fn from_slice_non_finite<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, Failure> {
+    from_slice(&quote_non_finite(bytes))
 }
 
 #[cfg(test)]
@@ -85,5 +166,27 @@ mod tests {
         assert_eq!(f.path.as_deref(), Some("other"));
         assert!(f.message().starts_with("unknown field `other`"));
         assert!(from_slice::<Doc>(b" {\"inner\": {\"n\": 3}}\n").is_ok());
+    }
+
+    #[test]
+    fn non_finite_words_become_strings_of_the_same_length_outside_strings_only() {
+        let text = br#"[NaN, Infinity,-Infinity, "NaN x", "a\"NaN", NaNa, 1]"#;
+        let q = quote_non_finite(text);
+        assert_eq!(q.len(), text.len());
+        assert_eq!(
+            std::str::from_utf8(&q).unwrap(),
+            r#"["N", "Infini","-Infini", "NaN x", "a\"NaN", NaNa, 1]"#
+        );
+        assert!(matches!(quote_non_finite(b"[1, 2]"), Cow::Borrowed(_)));
+        assert!(non_finite("N").unwrap().is_nan());
+        assert_eq!(non_finite("-Infinity"), Some(f64::NEG_INFINITY));
+        assert_eq!(non_finite("nan"), None);
+        // The strict reader, the scenes', still refuses them.
+        assert!(from_slice::<Vec<f64>>(b"[NaN]").is_err());
+        let v: Vec<String> = from_slice_non_finite(b"[NaN, Infinity]").unwrap();
+        assert_eq!(v, vec!["N", "Infini"]);
+        // An error after a stand-in is at the column of the bytes as sent.
+        let f = from_slice_non_finite::<Vec<String>>(b"[NaN, x]").unwrap_err();
+        assert_eq!((f.error.line(), f.error.column()), (1, 7));
     }
 }

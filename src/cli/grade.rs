@@ -68,10 +68,11 @@ pub struct TraceArgs {
 pub struct GradeArgs {
     /// The scene file (JSON) the submission was rendered from.
     scene: PathBuf,
-    /// The submission: a PNG, or hit data (.json, .ndjson, .npy, .csv); `-` reads
-    /// standard input.
+    /// The submission: an image (PNG, PPM, BMP, TGA, JPEG, PFM, OpenEXR: told by its
+    /// content), or hit data (.json, .ndjson, .npy, .csv); `-` reads standard input.
     submission: PathBuf,
-    /// The submission's format (default: by its extension, else by its content).
+    /// The format of hit data (default: by its extension, else by its content); an
+    /// image's signature decides whatever this says.
     #[arg(long, value_enum)]
     format: Option<Hint>,
     /// The report's form.

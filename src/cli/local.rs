@@ -14,10 +14,10 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use super::TraceOptions;
 use super::input::{load_scene, read_input};
-use crate::format::HitFormat;
-use crate::output::{HitSink, PngSink};
+use crate::format::{HitFormat, LinearImage, RasterFormat, exr, pfm};
+use crate::output::{FrameSink, HitSink, PngSink};
 use crate::render::{
-    self, ColourKernel, HitKernel, Kernel, Rect, Renderer, SinkClosed, Tile, TileSink,
+    self, ColourKernel, HitKernel, Kernel, LinearKernel, Rect, Renderer, SinkClosed, Tile, TileSink,
 };
 use crate::scene::{self, Limits, SceneError};
 
@@ -26,7 +26,8 @@ use crate::scene::{self, Limits, SceneError};
 pub struct RenderArgs {
     #[command(flatten)]
     opts: TraceOptions,
-    /// The PNG to write.
+    /// The image to write: a PNG (8-bit, gamma applied), or, named `.exr` or `.pfm`,
+    /// a float image of the linear colours before gamma and quantisation.
     #[arg(short, long)]
     output: PathBuf,
     #[command(flatten, next_help_heading = "Rendering on servers")]
@@ -97,6 +98,21 @@ pub fn validate(a: ValidateArgs) -> anyhow::Result<ExitCode> {
 
 /// `raytile render`: here, or with `--servers` on those servers.
 pub fn render(a: RenderArgs) -> anyhow::Result<ExitCode> {
+    let float = a
+        .output
+        .extension()
+        .and_then(|e| e.to_str())
+        .and_then(RasterFormat::from_name)
+        .filter(|f| f.is_linear());
+    if let Some(format) = float {
+        if !a.remote.servers.is_empty() {
+            anyhow::bail!(
+                "float images ({}) are rendered here only: --servers renders PNG",
+                format.title()
+            );
+        }
+        return render_linear(&a, format);
+    }
     if !a.remote.servers.is_empty() {
         return super::distributed::render(&a.opts, &a.output, &a.remote);
     }
@@ -109,6 +125,30 @@ pub fn render(a: RenderArgs) -> anyhow::Result<ExitCode> {
             let stats = trace_into(&ColourKernel(r), region, tile, &sink, timing)?;
             let t = Instant::now();
             sink.finish()?;
+            timing.finish = t.elapsed();
+            Ok(stats)
+        },
+    )
+}
+
+/// `raytile render -o x.exr | x.pfm`: the linear colours, kept whole and written at the
+/// end (neither format is written in tile order).
+fn render_linear(a: &RenderArgs, format: RasterFormat) -> anyhow::Result<ExitCode> {
+    run_traced(
+        "render",
+        &a.opts,
+        &a.output,
+        |r, region, tile, mut file, timing| {
+            let sink = FrameSink::new(region);
+            let stats = trace_into(&LinearKernel(r), region, tile, &sink, timing)?;
+            let t = Instant::now();
+            let px = sink.into_pixels().context("a worker panicked")?;
+            let img = LinearImage::from_pixels(region.width, region.height, &px);
+            let bytes = match format {
+                RasterFormat::Pfm => pfm::write(&img),
+                _ => exr::write(&img).map_err(anyhow::Error::msg)?,
+            };
+            std::io::Write::write_all(&mut file, &bytes)?;
             timing.finish = t.elapsed();
             Ok(stats)
         },

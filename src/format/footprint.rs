@@ -1,8 +1,11 @@
 //! What reading a submission costs in memory, decided before it is decoded (the server
 //! charges it to its memory budget first, `server::memory`), one estimate per family:
 //!
-//! - images: from the PNG header (width, height): the decoder's buffer at up to 4 bytes
-//!   a pixel once 16-bit samples are reduced to 8, its rows, and the 3-byte RGB image;
+//! - PNG images: from the header (width, height): the decoder's buffer at up to 8 bytes
+//!   a pixel (16-bit RGBA), its rows, and the 3-byte RGB image;
+//! - the other images (PPM, BMP, TGA, JPEG, PFM, OpenEXR): from the scene's frame, as
+//!   their readers refuse another size from the header before decoding and give the
+//!   decoder at most [`DecodeLimits::for_frame`]'s bytes; then the decoded raster;
 //! - NPY: from the header's shape (and no more records than the data can hold): one
 //!   record read a pixel;
 //! - JSON, NDJSON and CSV hit data: from the size of the text, at the fewest bytes a
@@ -17,13 +20,14 @@ use super::hit::{HitFormat, SubmittedHit};
 use super::json::PixelIn;
 use super::npy::NPY_MAGIC;
 use super::png::PNG_SIGNATURE;
+use super::raster::{DecodeLimits, RasterFormat};
 use super::{Group, ReadError};
 
 /// A submission's family, as far as it is known before reading it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Family {
-    /// A PNG image.
-    Png,
+    /// An image (a PNG is priced from its header, the others from the frame).
+    Image(RasterFormat),
     /// Hit data in one of its formats.
     Hits(HitFormat),
 }
@@ -48,10 +52,16 @@ const MIN_NPY_RECORD: u64 = 5;
 /// The estimate for `bytes` of `family` (`None`: told from the content as the grader
 /// does, so priced as the costliest family it could be). A PNG whose header cannot be
 /// read is refused here, as decoding would refuse it.
-pub fn submission(bytes: &[u8], family: Option<Family>) -> Result<Decoding, ReadError> {
+///
+/// `frame` is the scene's `width × height`, which an image other than a PNG must match.
+pub fn submission(
+    bytes: &[u8],
+    family: Option<Family>,
+    frame: (u32, u32),
+) -> Result<Decoding, ReadError> {
     let family = match family {
         Some(f) => f,
-        None if bytes.starts_with(PNG_SIGNATURE) => Family::Png,
+        None if bytes.starts_with(PNG_SIGNATURE) => Family::Image(RasterFormat::Png),
         None if bytes.starts_with(NPY_MAGIC) => Family::Hits(HitFormat::Npy),
         None => {
             let len = bytes.len() as u64;
@@ -65,7 +75,8 @@ pub fn submission(bytes: &[u8], family: Option<Family>) -> Result<Decoding, Read
         }
     };
     Ok(match family {
-        Family::Png => png(bytes)?,
+        Family::Image(RasterFormat::Png) => png(bytes)?,
+        Family::Image(f) => image_in_frame(f, frame),
         Family::Hits(HitFormat::Npy) => npy(bytes),
         Family::Hits(f) => text(bytes.len() as u64, f),
     })
@@ -85,14 +96,26 @@ pub fn png_size(bytes: &[u8]) -> Result<(u32, u32), ReadError> {
     Ok((be(&ihdr[8..12]), be(&ihdr[12..16])))
 }
 
+/// An image of `format` decoded for a `frame`: what its decoder may take at most, then
+/// the raster it keeps (8-bit RGB, or three 32-bit floats a pixel for float images).
+fn image_in_frame(format: RasterFormat, (w, h): (u32, u32)) -> Decoding {
+    let pixels = w as u64 * h as u64;
+    let held = pixels * if format.is_linear() { 12 } else { 3 };
+    Decoding {
+        peak: DecodeLimits::for_frame(w, h).max_bytes as u64 + held,
+        held,
+    }
+}
+
 fn png(bytes: &[u8]) -> Result<Decoding, ReadError> {
     let (w, h) = png_size(bytes)?;
     let pixels = w as u64 * h as u64;
-    // The decoder's output (at most RGBA at 8 bits), the RGB image, and rows of raw
-    // 16-bit RGBA (the current and the previous) and the inflater's window.
+    // The decoder's output (the image crate keeps 16-bit samples: RGBA at 16 bits, 8
+    // bytes a pixel), the RGB image, and rows of raw 16-bit RGBA (the current and the
+    // previous) and the inflater's window.
     let held = pixels * 3;
     Ok(Decoding {
-        peak: pixels * 4 + h as u64 + held + 4 * w as u64 * 8 + (1 << 20),
+        peak: pixels * 8 + h as u64 + held + 4 * w as u64 * 8 + (1 << 20),
         held,
     })
 }
@@ -152,12 +175,11 @@ fn text(len: u64, format: HitFormat) -> Decoding {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::format::png::RgbImage;
     use crate::format::{csv, json, ndjson, npy};
     use crate::measure;
 
     fn peak_of(bytes: &[u8], family: Family, read: impl FnOnce(&[u8]) -> bool) {
-        let estimate = submission(bytes, Some(family)).unwrap();
+        let estimate = submission(bytes, Some(family), (1, 1)).unwrap();
         let ((ok, held), peak) = measure::peak(|| {
             let before = measure::live();
             let ok = read(bytes);
@@ -175,7 +197,7 @@ mod tests {
             estimate.held
         );
         // Told from the content, the estimate is no lower.
-        assert!(submission(bytes, None).unwrap().peak >= peak);
+        assert!(submission(bytes, None, (1, 1)).unwrap().peak >= peak);
     }
 
     #[test]
@@ -212,8 +234,9 @@ mod tests {
             enc.set_color(::png::ColorType::Rgba);
             enc.set_depth(::png::BitDepth::Sixteen);
             let mut wr = enc.write_header().unwrap();
+            // Varied colours (so that it does not compress to nothing), opaque.
             let data: Vec<u8> = (0..w as usize * h as usize * 8)
-                .map(|i| (i % 251) as u8)
+                .map(|i| if i % 8 >= 6 { 0xFF } else { (i % 251) as u8 })
                 .collect();
             wr.write_image_data(&data).unwrap();
         }
@@ -224,8 +247,14 @@ mod tests {
     fn a_png_is_priced_from_its_header_above_its_decoding() {
         let file = rgba16(640, 480);
         assert_eq!(png_size(&file), Ok((640, 480)));
-        let estimate = submission(&file, Some(Family::Png)).unwrap();
-        let (img, peak) = measure::peak(|| RgbImage::decode_png(&file, Some((640, 480))).unwrap());
+        let estimate = submission(&file, Some(Family::Image(RasterFormat::Png)), (1, 1)).unwrap();
+        let limits = DecodeLimits::for_frame(640, 480);
+        let (raster, peak) = measure::peak(|| {
+            crate::format::raster::decode(&file, RasterFormat::Png, &limits).unwrap()
+        });
+        let crate::format::raster::Raster::Rgb8(img) = raster else {
+            panic!("a PNG decodes to 8-bit RGB")
+        };
         assert!(
             estimate.peak >= peak,
             "estimate {} < peak {peak}",

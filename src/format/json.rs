@@ -12,6 +12,11 @@
 //! objects; `u`, `v` may be left out when the pixels are in row-major order, `object`
 //! may be −1 for none, and any field [`PixelHit`] does not name is an error (a misspelt
 //! `lamda` is caught). The pixel objects and their checks are shared with [`super::ndjson`].
+//!
+//! Numbers may also be `NaN`, `Infinity` or `-Infinity`, bare as Python's `json.dump`
+//! writes them (or quoted), and `object` may be `NaN`: a NumPy tracer's miss
+//! (`"lambda": NaN, "normal": [NaN, NaN, NaN]`) reads as a miss with nothing, and a hit
+//! whose `λ` or normal is not finite reads as given and fails the comparison.
 
 use std::io::{self, Write};
 
@@ -71,6 +76,44 @@ pub fn read(bytes: &[u8]) -> Result<HitData, ReadError> {
     })
 }
 
+/// A number, or one of the non-finite words (see [`crate::json::non_finite`]).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Num(f64);
+
+impl<'de> Deserialize<'de> for Num {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Num, D::Error> {
+        struct V;
+        impl serde::de::Visitor<'_> for V {
+            type Value = Num;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a number, NaN, Infinity or -Infinity")
+            }
+            fn visit_f64<E>(self, x: f64) -> Result<Num, E> {
+                Ok(Num(x))
+            }
+            fn visit_i64<E>(self, x: i64) -> Result<Num, E> {
+                Ok(Num(x as f64))
+            }
+            fn visit_u64<E>(self, x: u64) -> Result<Num, E> {
+                Ok(Num(x as f64))
+            }
+            fn visit_str<E: serde::de::Error>(self, s: &str) -> Result<Num, E> {
+                crate::json::non_finite(s)
+                    .map(Num)
+                    .ok_or_else(|| E::invalid_value(serde::de::Unexpected::Str(s), &self))
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+fn vec3(v: Option<[Num; 3]>) -> Option<[f64; 3]> {
+    v.map(|v| v.map(|n| n.0))
+}
+
+/// The fields of a hit-data document (or NDJSON line), as its reader accepts them.
+pub const DOCUMENT_FIELDS: [&str; 5] = ["width", "height", "region", "tile", "pixels"];
+
 /// A pixel object as JSON and NDJSON carry it: the fields of [`PixelHit`].
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -80,21 +123,21 @@ pub(super) struct PixelIn {
     #[serde(default)]
     v: Option<u32>,
     hit: bool,
-    /// −1 is accepted for "none", as NPY writes it.
+    /// −1 (as NPY writes it) and NaN are accepted for "none".
     #[serde(default)]
-    object: Option<i64>,
+    object: Option<Num>,
     #[serde(default)]
     #[allow(dead_code)]
     name: Option<String>,
     #[serde(default)]
-    lambda: Option<f64>,
+    lambda: Option<Num>,
     #[serde(default)]
-    point: Option<[f64; 3]>,
+    point: Option<[Num; 3]>,
     #[serde(default)]
     #[allow(dead_code)]
-    object_point: Option<[f64; 3]>,
+    object_point: Option<[Num; 3]>,
     #[serde(default)]
-    normal: Option<[f64; 3]>,
+    normal: Option<[Num; 3]>,
     #[serde(default)]
     #[allow(dead_code)]
     face: Option<String>,
@@ -131,7 +174,7 @@ pub(super) fn from_json<T: serde::de::DeserializeOwned>(
     format: HitFormat,
     line_offset: usize,
 ) -> Result<T, ReadError> {
-    crate::json::from_slice(bytes).map_err(|f| {
+    crate::json::from_slice_non_finite(bytes).map_err(|f| {
         let mut err = json_error(format, line_offset)(f.error);
         if let (ReadError::Syntax { message, .. }, Some(path)) = (&mut err, f.path) {
             *message = format!("{path}: {message}");
@@ -164,22 +207,25 @@ pub(super) fn group(
                     message: "gives only one of `u` and `v`".into(),
                 });
             }
-            let object = match p.object {
+            let object = match p.object.map(|o| o.0) {
                 None => None,
-                Some(o) if o < 0 => None,
-                Some(o) => Some(u32::try_from(o).map_err(|_| ReadError::BadValue {
-                    at: at(k),
-                    message: format!("`object` {o} is not a valid index"),
-                })?),
+                Some(o) if o.is_nan() || o < 0.0 => None,
+                Some(o) if o.fract() == 0.0 && o <= u32::MAX as f64 => Some(o as u32),
+                Some(o) => {
+                    return Err(ReadError::BadValue {
+                        at: at(k),
+                        message: format!("`object` {o} is not a valid index"),
+                    });
+                }
             };
             let s = SubmittedHit {
                 u: p.u,
                 v: p.v,
                 hit: p.hit,
                 object,
-                lambda: p.lambda,
-                point: p.point,
-                normal: p.normal,
+                lambda: p.lambda.map(|l| l.0),
+                point: vec3(p.point),
+                normal: vec3(p.normal),
             };
             s.check(|| at(k))?;
             Ok(s)
@@ -235,6 +281,48 @@ mod tests {
         let doc: serde_json::Value = serde_json::from_slice(&out).unwrap();
         let again: Vec<PixelHit> = serde_json::from_value(doc["pixels"].clone()).unwrap();
         assert_eq!(again, records);
+    }
+
+    #[test]
+    fn python_s_non_finite_numbers_and_null_mark_a_miss() {
+        // What `json.dump` writes for a NumPy tracer's miss and hit.
+        let text = br#"[{"u": 0, "v": 0, "hit": false, "object": NaN, "lambda": NaN,
+            "point": [NaN, NaN, NaN], "normal": [NaN, -Infinity, Infinity]},
+            {"u": 1, "v": 0, "hit": false, "object": null, "lambda": null, "normal": null},
+            {"u": 2, "v": 0, "hit": true, "object": 1, "lambda": Infinity, "normal": [0, 0, -1]},
+            {"u": 3, "v": 0, "hit": true, "object": 2.0, "lambda": "NaN", "normal": [0, 0, -1]}]"#;
+        let h = read(text).unwrap();
+        let p = &h.groups[0].pixels;
+        assert!(!p[0].hit && p[0].object.is_none());
+        assert!(p[0].lambda.unwrap().is_nan());
+        assert_eq!(p[0].normal.unwrap()[1], f64::NEG_INFINITY);
+        assert_eq!((p[1].object, p[1].lambda), (None, None));
+        assert_eq!(p[2].lambda, Some(f64::INFINITY));
+        assert_eq!(p[3].object, Some(2));
+        assert!(p[3].lambda.unwrap().is_nan());
+        let e = read(br#"[{"hit": true, "object": 1.5, "lambda": 1, "normal": [0, 0, 1]}]"#)
+            .unwrap_err();
+        assert!(
+            e.to_string().contains("`object` 1.5 is not a valid index"),
+            "{e}"
+        );
+        let e = read(br#"[{"hit": false, "lambda": "far"}]"#).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("expected a number, NaN, Infinity or -Infinity"),
+            "{e}"
+        );
+        // The column of an error after a NaN is the one in the text as sent.
+        let column = |text: &[u8]| match read(text).unwrap_err() {
+            ReadError::Syntax {
+                line: 1, column, ..
+            } => column,
+            e => panic!("{e:?}"),
+        };
+        assert_eq!(
+            column(br#"[{"hit": false, "lambda": NaN, "x": 1}]"#),
+            column(br#"[{"hit": false, "lambda": 1.0, "x": 1}]"#)
+        );
     }
 
     #[test]

@@ -7,6 +7,10 @@
 //! | [`npy`] | hit data, a NumPy structured array (`.npy`, `application/x-npy`) | `raytile hits`, `/v1/hits` | the grader |
 //! | [`csv`] | hit data, a table with a header (`.csv`, `text/csv`) | `raytile hits`, `/v1/hits` | the grader |
 //! | [`png`] | 8-bit RGB images (`.png`, `image/png`) | renders, difference images | the grader, `render --servers` |
+//! | [`raster`] | every submitted image, told by content: PNG, PPM/PGM/PBM/PAM, BMP, TGA, JPEG (into 8-bit RGB), PFM, OpenEXR (linear) | — | the grader |
+//! | [`pfm`] | linear float images (`.pfm`) | `render -o x.pfm` | the grader (via [`raster`]) |
+//! | [`exr`] | linear float images (`.exr`, `image/x-exr`) | `render -o x.exr` | the grader (via [`raster`]) |
+//! | [`linear`] | the linear frame in memory ([`LinearImage`]) | the renderer's [`crate::render::LinearKernel`] | — |
 //!
 //! What the hit-data formats share lives in [`hit`]: the record a pixel is written as
 //! ([`PixelHit`]), the record it is read back as ([`SubmittedHit`]), and [`HitFormat`]
@@ -24,15 +28,21 @@
 //! `output`, `grade`, `server` and `cli` use `format`, never the other way.
 
 pub mod csv;
+pub mod exr;
 pub mod footprint;
 pub mod hit;
 pub mod json;
+pub mod linear;
 pub mod ndjson;
 pub mod npy;
+pub mod pfm;
 pub mod png;
+pub mod raster;
 
 pub use self::png::RgbImage;
 pub use hit::{Group, HitData, HitFormat, PixelHit, SubmittedHit};
+pub use linear::LinearImage;
+pub use raster::{DecodeLimits, Raster, RasterFormat};
 
 /// Why bytes could not be read as a format. [`crate::grade::GradeError`] carries it as
 /// `Unreadable`, saying in its own words only what makes a submission the wrong thing
@@ -45,6 +55,36 @@ pub enum ReadError {
     /// A PNG that cannot be decoded.
     #[error("the PNG file is corrupt: {0}")]
     CorruptPng(String),
+    /// An image of another format (PPM, BMP, TGA, JPEG, PFM, OpenEXR) that cannot be
+    /// decoded.
+    #[error("the {format} file is corrupt: {message}")]
+    CorruptImage {
+        /// `"PPM"`, `"BMP"`, `"TGA"`, `"JPEG"`, `"PFM"` or `"OpenEXR"`.
+        format: &'static str,
+        /// The decoder's words.
+        message: String,
+    },
+    /// An image whose decoding would take more memory than allowed (told from its
+    /// header).
+    #[error("the {format} image is too large: decoding it would need more than {} MiB", .limit_bytes >> 20)]
+    TooLarge {
+        /// The format's title.
+        format: &'static str,
+        /// The allowance.
+        limit_bytes: usize,
+    },
+    /// An image with a pixel that is not opaque.
+    #[error(
+        "pixel ({u}, {v}) is not opaque (alpha {alpha}): the grader compares colours and cannot tell what a transparent pixel should show; save the image without alpha, or with every pixel opaque"
+    )]
+    NotOpaque {
+        /// Column.
+        u: u32,
+        /// Row.
+        v: u32,
+        /// Its alpha, as stored.
+        alpha: String,
+    },
     /// An image that is not the size asked for (told from its header).
     #[error("the image is {width} × {height} pixels, not {expected_width} × {expected_height}")]
     SizeMismatch {
@@ -102,6 +142,9 @@ impl ReadError {
         match self {
             ReadError::NotPng => "not-png",
             ReadError::CorruptPng(_) => "corrupt-png",
+            ReadError::CorruptImage { .. } => "corrupt-image",
+            ReadError::TooLarge { .. } => "too-large",
+            ReadError::NotOpaque { .. } => "not-opaque",
             ReadError::SizeMismatch { .. } => "size-mismatch",
             ReadError::Syntax { .. } => "syntax",
             ReadError::WrongShape(_) => "wrong-shape",

@@ -5,8 +5,8 @@
 //! {"tile":{"x":0,"y":0,"width":2,"height":1},"pixels":[{"u":0,"v":0,"hit":false,…},…]}
 //! ```
 //!
-//! The pixel objects are JSON's ([`super::json`]); the reader takes the lines in any order
-//! and skips blank ones.
+//! The pixel objects are JSON's ([`super::json`]), `NaN` and `Infinity` included; the
+//! reader takes the lines in any order and skips blank ones.
 
 use super::ReadError;
 use super::hit::{HitData, HitFormat, PixelHit};
@@ -40,7 +40,7 @@ pub fn sniff(text: &[u8]) -> bool {
         .filter(|l| !l.trim_ascii().is_empty());
     let first = lines.next().unwrap_or_default();
     let more = lines.next().is_some();
-    more && serde_json::from_slice::<serde::de::IgnoredAny>(first).is_ok()
+    more && crate::json::from_slice_non_finite::<serde::de::IgnoredAny>(first).is_ok()
 }
 
 /// Reads the lines, each a group of pixels.

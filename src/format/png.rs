@@ -3,17 +3,13 @@
 //!
 //! Writing is always 8-bit RGB: a render streams rows through [`stream_writer`] (fast
 //! compression, since the client is waiting), a difference image is encoded whole by
-//! [`RgbImage::encode_png`] (balanced compression, since it is kept). Reading is one
-//! decoder, [`PngReader`], for every PNG raytile reads: a student's image when grading
-//! ([`RgbImage::decode_png`]) and a server's band under `render --servers`. It reads the
-//! header first, so a caller can refuse the wrong size before anything is decompressed,
-//! and it decodes any bit depth and colour type into 8-bit RGB: 16-bit samples keep
-//! their high byte, palettes and low bit depths are expanded, grey is copied to all three
-//! channels and alpha is dropped (not composited).
+//! [`RgbImage::encode_png`] (balanced compression, since it is kept). [`PngReader`] reads
+//! a server's band back under `render --servers`: the header first, so the wrong size is
+//! refused before anything is decompressed. A student's PNG is read as every submitted
+//! image is, by [`super::raster`], whose rules (16-bit rounding, no transparency) are the
+//! grader's.
 
 use std::io::{Cursor, Write};
-
-use super::ReadError;
 
 /// The format's name (and file extension).
 pub const NAME: &str = "png";
@@ -23,9 +19,6 @@ pub const MEDIA_TYPE: &str = "image/png";
 
 /// The eight bytes every PNG starts with.
 pub const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
-
-/// Memory a PNG may take to decode when its expected size is not known.
-pub const DEFAULT_DECODE_BYTES: usize = 64 << 20;
 
 /// An 8-bit RGB image, rows top to bottom, 3 bytes per pixel.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
@@ -68,39 +61,6 @@ impl RgbImage {
     pub fn set(&mut self, u: u32, v: u32, c: [u8; 3]) {
         let k = 3 * (v as usize * self.width as usize + u as usize);
         self.data[k..k + 3].copy_from_slice(&c);
-    }
-
-    /// Decodes a PNG of any bit depth and colour type into 8-bit RGB.
-    ///
-    /// With `expected` (the scene's `width × height`), a PNG of another size is refused
-    /// from its header, before anything is decompressed: a small file cannot make the
-    /// grader allocate more than that frame needs.
-    pub fn decode_png(bytes: &[u8], expected: Option<(u32, u32)>) -> Result<RgbImage, ReadError> {
-        if !bytes.starts_with(PNG_SIGNATURE) {
-            return Err(ReadError::NotPng);
-        }
-        let limit = match expected {
-            // The widest legitimate layout: 16-bit RGBA, 8 bytes a pixel, plus row filters.
-            Some((w, h)) => (w as usize)
-                .saturating_mul(h as usize)
-                .saturating_mul(8)
-                .saturating_add(h as usize)
-                .saturating_add(1 << 20),
-            None => DEFAULT_DECODE_BYTES,
-        };
-        let png = PngReader::new(bytes, limit)?;
-        if let Some((ew, eh)) = expected {
-            let (w, h) = png.size();
-            if (w, h) != (ew, eh) {
-                return Err(ReadError::SizeMismatch {
-                    width: w,
-                    height: h,
-                    expected_width: ew,
-                    expected_height: eh,
-                });
-            }
-        }
-        Ok(png.decode()?)
     }
 
     /// Encodes as an 8-bit RGB PNG.
@@ -172,12 +132,6 @@ impl PngError {
             png::DecodingError::LimitsExceeded => PngError::TooLarge { limit_bytes },
             e => PngError::Corrupt(e.to_string()),
         }
-    }
-}
-
-impl From<PngError> for ReadError {
-    fn from(e: PngError) -> ReadError {
-        ReadError::CorruptPng(e.to_string())
     }
 }
 
@@ -284,82 +238,43 @@ mod tests {
     }
 
     #[test]
-    fn rgb_round_trip() {
+    fn rgb_round_trip_and_every_colour_type_as_rgb8() {
         let img = RgbImage {
             width: 2,
             height: 1,
             data: vec![1, 2, 3, 250, 251, 252],
         };
-        assert_eq!(RgbImage::decode_png(&img.encode_png(), None).unwrap(), img);
-    }
-
-    #[test]
-    fn rgba_grey_and_16_bit_become_rgb8() {
-        let rgba = encode(
-            1,
-            1,
-            png::ColorType::Rgba,
-            png::BitDepth::Eight,
-            &[9, 8, 7, 0],
-        );
-        assert_eq!(
-            RgbImage::decode_png(&rgba, None).unwrap().data,
-            vec![9, 8, 7]
-        );
-        let grey = encode(
-            2,
-            1,
-            png::ColorType::Grayscale,
-            png::BitDepth::Eight,
-            &[5, 6],
-        );
-        assert_eq!(
-            RgbImage::decode_png(&grey, None).unwrap().data,
-            vec![5, 5, 5, 6, 6, 6]
-        );
+        let bytes = img.encode_png();
+        let r = PngReader::new(&bytes, 1 << 20).unwrap();
+        assert_eq!(r.decode().unwrap(), img);
         let wide = encode(
             1,
             1,
-            png::ColorType::Rgb,
+            png::ColorType::Rgba,
             png::BitDepth::Sixteen,
-            &[0x12, 0x34, 0xab, 0xcd, 0xff, 0xff],
+            &[0x12, 0x34, 0xab, 0xcd, 0xff, 0xff, 0, 0],
         );
-        assert_eq!(
-            RgbImage::decode_png(&wide, None).unwrap().data,
-            vec![0x12, 0xab, 0xff]
-        );
-        let bits = encode(
-            8,
-            1,
-            png::ColorType::Grayscale,
-            png::BitDepth::One,
-            &[0b1000_0001],
-        );
-        let d = RgbImage::decode_png(&bits, None).unwrap().data;
-        assert_eq!(&d[..3], &[255, 255, 255]);
-        assert_eq!(&d[3..6], &[0, 0, 0]);
+        let r = PngReader::new(&wide, 1 << 20).unwrap();
+        assert!(!r.is_rgb8());
+        assert_eq!(r.decode().unwrap().data, vec![0x12, 0xab, 0xff]);
     }
 
     #[test]
-    fn garbage_and_truncated_files_are_errors() {
-        assert!(matches!(
-            RgbImage::decode_png(b"hello", None),
-            Err(ReadError::NotPng)
-        ));
+    fn truncated_files_and_huge_headers_are_errors() {
         let img = RgbImage {
             width: 30,
             height: 30,
             data: vec![7; 2700],
         };
         let png = img.encode_png();
+        let e = PngReader::new(&png[..png.len() / 2], 1 << 20)
+            .and_then(PngReader::decode)
+            .unwrap_err();
+        assert!(matches!(e, PngError::Corrupt(_)), "{e}");
         assert!(matches!(
-            RgbImage::decode_png(&png[..png.len() / 2], None),
-            Err(ReadError::CorruptPng(_))
+            PngReader::new(b"hello", 1 << 20).map(|r| r.size()),
+            Err(PngError::Corrupt(_))
         ));
-    }
-
-    #[test]
-    fn a_huge_header_is_refused_before_decoding() {
         // A 1 × 1 image whose header is patched to claim 60000 × 60000 pixels.
         let mut png = RgbImage {
             width: 1,
@@ -382,19 +297,9 @@ mod tests {
             }
         }
         png[29..33].copy_from_slice(&(!crc).to_be_bytes());
-        let e = RgbImage::decode_png(&png, Some((1, 1))).unwrap_err();
-        assert!(
-            matches!(
-                e,
-                ReadError::SizeMismatch {
-                    width: 60000,
-                    height: 60000,
-                    ..
-                }
-            ),
-            "{e}"
-        );
-        let e = RgbImage::decode_png(&png, None).unwrap_err();
+        let r = PngReader::new(&png, 64 << 20).unwrap();
+        assert_eq!(r.size(), (60000, 60000));
+        let e = r.decode().unwrap_err();
         assert!(e.to_string().contains("more than 64 MiB"), "{e}");
     }
 

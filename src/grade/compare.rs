@@ -7,6 +7,11 @@
 //! the normal within `normal_degrees`. In edge-forgiving mode a pixel that fails also
 //! passes when it would pass against any reference pixel of its 3 × 3 neighbourhood
 //! (anti-aliased or rounding-sensitive silhouettes differ by a pixel).
+//!
+//! A float image (PFM, OpenEXR) is compared in linear radiance, before gamma and
+//! quantisation: a pixel passes when every channel is within
+//! `linear_abs + linear_rel · |reference|` of the reference's linear value; a NaN or an
+//! infinity fails.
 
 use glam::DVec3;
 use serde::Serialize;
@@ -14,6 +19,7 @@ use serde::Serialize;
 use super::Tolerances;
 use super::image::RgbImage;
 use super::submission::SubmittedHit;
+use crate::format::LinearImage;
 use crate::geometry::Surface;
 
 /// The colour failing pixels are painted in the difference image.
@@ -26,6 +32,8 @@ const DIM: f64 = 0.35;
 pub mod check {
     /// A colour channel out of tolerance.
     pub const COLOUR: &str = "colour";
+    /// A linear channel out of tolerance.
+    pub const LINEAR: &str = "linear";
     /// Hit where the reference misses, or the reverse.
     pub const HIT_MISS: &str = "hit_miss";
     /// A different object.
@@ -44,6 +52,11 @@ pub enum PixelValue {
     Colour {
         /// `[r, g, b]`.
         rgb: [u8; 3],
+    },
+    /// A linear colour, before gamma and quantisation.
+    Linear {
+        /// `[r, g, b]` (`null` for a NaN or an infinity).
+        linear: [Option<f32>; 3],
     },
     /// Hit data.
     Hit {
@@ -74,6 +87,10 @@ pub struct WorstPixel {
     /// Largest channel difference (images).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub colour_error: Option<u8>,
+    /// Largest channel difference in linear radiance (float images; NaN for a value
+    /// that is not finite, then written as `null`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub linear_error: Option<f64>,
     /// `|λ − λref| / λref` (hit data, both hit).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lambda_rel_error: Option<f64>,
@@ -107,6 +124,17 @@ pub struct HitCounts {
     pub both_hit: u64,
 }
 
+/// Statistics of a linear comparison (float images).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct LinearCounts {
+    /// Largest channel difference where both values are finite.
+    pub max_abs_error: f64,
+    /// Mean channel difference where both values are finite.
+    pub mean_abs_error: f64,
+    /// Submitted channels that are NaN or infinite (each fails its pixel).
+    pub non_finite: u64,
+}
+
 /// The outcome of a comparison.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Comparison {
@@ -118,6 +146,8 @@ pub struct Comparison {
     pub worst: Vec<WorstPixel>,
     /// Per-check counts, for hit data.
     pub hits: Option<HitCounts>,
+    /// Error statistics, for float images compared in linear radiance.
+    pub linear: Option<LinearCounts>,
     /// Failing pixels in [`FAIL_RGB`] over the dimmed reference.
     pub diff: RgbImage,
 }
@@ -262,6 +292,7 @@ pub fn images(
                     pass,
                     failures: if direct { vec![] } else { vec![check::COLOUR] },
                     colour_error: Some(err),
+                    linear_error: None,
                     lambda_rel_error: None,
                     normal_angle_degrees: None,
                     reference: PixelValue::Colour { rgb: r },
@@ -275,6 +306,121 @@ pub fn images(
         forgiven,
         worst: top.into_vec(),
         hits: None,
+        linear: None,
+        diff,
+    }
+}
+
+/// How many tolerances off a linear channel is (infinite for NaN or an infinity).
+fn linear_excess(r: f32, s: f32, tol: &Tolerances) -> f64 {
+    let (r, s) = (r as f64, s as f64);
+    let d = (s - r).abs();
+    if !d.is_finite() {
+        return f64::INFINITY;
+    }
+    let allowed = tol.linear_abs + tol.linear_rel * r.abs();
+    if allowed > 0.0 {
+        d / allowed
+    } else if d > 0.0 {
+        f64::INFINITY
+    } else {
+        0.0
+    }
+}
+
+/// The worst channel of a pixel, in tolerances (≤ 1 passes).
+fn linear_pixel_excess(r: [f32; 3], s: [f32; 3], tol: &Tolerances) -> f64 {
+    (0..3)
+        .map(|k| linear_excess(r[k], s[k], tol))
+        .fold(0.0, f64::max)
+}
+
+fn finite(c: [f32; 3]) -> [Option<f32>; 3] {
+    c.map(|x| x.is_finite().then_some(x))
+}
+
+/// Compares two linear images of the same size; `picture` is the reference as 8-bit
+/// RGB, the picture under the difference image.
+pub fn linear(
+    reference: &LinearImage,
+    submitted: &LinearImage,
+    picture: &RgbImage,
+    tol: &Tolerances,
+    worst: usize,
+) -> Comparison {
+    let (w, h) = (reference.width, reference.height);
+    let mut failing = 0;
+    let mut forgiven = 0;
+    let mut counts = LinearCounts::default();
+    let (mut sum, mut n) = (0.0, 0u64);
+    let mut diff = RgbImage {
+        width: w,
+        height: h,
+        data: Vec::with_capacity(w as usize * h as usize * 3),
+    };
+    let mut top = Worst::new(worst);
+    for v in 0..h {
+        for u in 0..w {
+            let (r, s) = (reference.get(u, v), submitted.get(u, v));
+            let (mut err, mut bad) = (0.0f64, false);
+            for k in 0..3 {
+                let d = (s[k] as f64 - r[k] as f64).abs();
+                if d.is_finite() {
+                    err = err.max(d);
+                    sum += d;
+                    n += 1;
+                } else {
+                    counts.non_finite += 1;
+                    bad = true;
+                }
+            }
+            counts.max_abs_error = counts.max_abs_error.max(err);
+            let err = if bad { f64::NAN } else { err };
+            let excess = linear_pixel_excess(r, s, tol);
+            let direct = excess <= 1.0;
+            let pass = direct
+                || (tol.edge_forgiving
+                    && neighbours(u, v, w, h)
+                        .skip(1)
+                        .any(|(x, y)| linear_pixel_excess(reference.get(x, y), s, tol) <= 1.0));
+            if !pass {
+                failing += 1;
+            } else if !direct {
+                forgiven += 1;
+            }
+            diff.data.extend_from_slice(&if pass {
+                dim(picture.get(u, v))
+            } else {
+                FAIL_RGB
+            });
+            if err != 0.0 {
+                let rank = Rank {
+                    key: [(!pass) as u8 as f64, excess, err],
+                    u,
+                    v,
+                };
+                top.offer(rank, || WorstPixel {
+                    u,
+                    v,
+                    pass,
+                    failures: if direct { vec![] } else { vec![check::LINEAR] },
+                    colour_error: None,
+                    linear_error: Some(err),
+                    lambda_rel_error: None,
+                    normal_angle_degrees: None,
+                    reference: PixelValue::Linear { linear: finite(r) },
+                    submitted: PixelValue::Linear { linear: finite(s) },
+                });
+            }
+        }
+    }
+    counts.mean_abs_error = if n > 0 { sum / n as f64 } else { 0.0 };
+    Comparison {
+        failing,
+        forgiven,
+        worst: top.into_vec(),
+        hits: None,
+        linear: Some(counts),
         diff,
     }
 }
@@ -485,6 +631,7 @@ pub fn hits(
                     pass,
                     failures: c.failures(),
                     colour_error: None,
+                    linear_error: None,
                     lambda_rel_error: c.lambda_rel,
                     normal_angle_degrees: c.angle,
                     reference: hit_value(r),
@@ -504,6 +651,7 @@ pub fn hits(
         forgiven,
         worst: top.into_vec(),
         hits: Some(counts),
+        linear: None,
         diff,
     }
 }
@@ -564,6 +712,49 @@ mod tests {
         let c = images(&a, &b, &t, 5);
         assert_eq!(c.failing, 0);
         assert_eq!(c.forgiven, 2);
+    }
+
+    #[test]
+    fn linear_images_compare_with_a_relative_and_an_absolute_tolerance() {
+        let t = Tolerances {
+            linear_rel: 0.01,
+            linear_abs: 0.001,
+            ..Default::default()
+        };
+        let reference = LinearImage::from_pixels(4, 1, &[[0.0; 3], [10.0; 3], [0.5; 3], [1.0; 3]]);
+        let within = LinearImage::from_pixels(
+            4,
+            1,
+            &[[0.0009, 0.0, 0.0], [10.09, 9.91, 10.0], [0.5; 3], [1.0; 3]],
+        );
+        let picture = flat(4, 1, 100);
+        let c = linear(&reference, &within, &picture, &t, 10);
+        assert_eq!(c.failing, 0);
+        assert!((c.linear.unwrap().max_abs_error - 0.09).abs() < 1e-5);
+        let beyond = LinearImage::from_pixels(
+            4,
+            1,
+            &[
+                [0.0011, 0.0, 0.0],
+                [10.2, 10.0, 10.0],
+                [f32::NAN, 0.5, 0.5],
+                [1.0; 3],
+            ],
+        );
+        let c = linear(&reference, &beyond, &picture, &t, 10);
+        assert_eq!(c.failing, 3);
+        assert_eq!(c.linear.unwrap().non_finite, 1);
+        // The NaN pixel is worst (infinitely many tolerances off), then λ-like ranking.
+        assert_eq!(
+            (c.worst[0].u, c.worst[0].failures.clone()),
+            (2, vec![check::LINEAR])
+        );
+        assert_eq!(
+            serde_json::to_value(&c.worst[0].submitted).unwrap(),
+            serde_json::json!({"linear": [null, 0.5, 0.5]})
+        );
+        assert_eq!(c.diff.get(3, 0), [35, 35, 35]);
+        assert_eq!(c.diff.get(0, 0), FAIL_RGB);
     }
 
     #[test]

@@ -17,9 +17,22 @@ const HITS_PIXEL: u64 = 512;
 /// What grading holds whatever the frame (the report, the worst pixels).
 const FIXED: u64 = 1 << 20;
 
-/// The peak of grading a `width × height` frame: an image or hit data.
-pub fn grading(width: u32, height: u32, image: bool) -> u64 {
-    let per_pixel = if image { IMAGE_PIXEL } else { HITS_PIXEL };
+/// What diagnosing a failing submission adds a pixel (`grade::diagnose`): its entries
+/// run one after another, each holding one wrong reference and its comparison beside
+/// the grade's own (an image: the wrong image, the linear frame the gamma entries
+/// share, the comparison; hit data: a wrong copy of the reference's records).
+const DIAGNOSIS_IMAGE_PIXEL: u64 = 48;
+const DIAGNOSIS_HITS_PIXEL: u64 = 192;
+
+/// The peak of grading a `width × height` frame: an image or hit data, `diagnosed` if
+/// a failing submission of that frame would be diagnosed.
+pub fn grading(width: u32, height: u32, image: bool, diagnosed: bool) -> u64 {
+    let per_pixel = match (image, diagnosed) {
+        (true, false) => IMAGE_PIXEL,
+        (true, true) => IMAGE_PIXEL + DIAGNOSIS_IMAGE_PIXEL,
+        (false, false) => HITS_PIXEL,
+        (false, true) => HITS_PIXEL + DIAGNOSIS_HITS_PIXEL,
+    };
     width as u64 * height as u64 * per_pixel + FIXED
 }
 
@@ -50,7 +63,7 @@ mod tests {
         let r = renderer(w, h);
         let cancel = Cancel::default();
         let submission = if image {
-            Submission::Image(reference_image(&r, &cancel).unwrap())
+            Submission::Image(reference_image(&r, &cancel).unwrap().into())
         } else {
             let hits = reference_hits(&r, &cancel).unwrap();
             let pixels: Vec<crate::format::PixelHit> = hits
@@ -74,7 +87,7 @@ mod tests {
         let (report, peak) =
             measure::peak(|| grade(&r, submission, &Tolerances::default(), &opts).unwrap());
         assert!(report.pass);
-        let estimate = grading(w, h, image);
+        let estimate = grading(w, h, image, false);
         eprintln!(
             "image {image} flip {flip}: peak {peak} = {} a pixel; estimate {estimate}",
             peak / (w as u64 * h as u64)

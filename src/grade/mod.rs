@@ -4,7 +4,8 @@
 //!
 //! ```text
 //! Submission::parse(bytes, hint) ──► grade(&renderer, submission, &tolerances, &options)
-//!        PNG │ JSON │ NDJSON │ NPY │ CSV            │ renders the reference (colour or hits)
+//!  PNG │ PPM │ BMP │ TGA │ JPEG │ PFM │ EXR     │ renders the reference (colour, linear
+//!       JSON │ NDJSON │ NPY │ CSV                │ colour or hits)
 //!                                                  │ compares pixel by pixel (compare)
 //!                                                  │ error statistics (metrics)
 //!                                                  ▼
@@ -31,15 +32,13 @@ pub mod report;
 pub mod score;
 pub mod submission;
 
-use std::sync::Mutex;
-
 use serde::{Deserialize, Serialize};
 
-use crate::format::{ReadError, png};
+use crate::format::{LinearImage, Raster, ReadError};
 use crate::geometry::Surface;
+use crate::output::FrameSink;
 use crate::render::{
-    Cancel, ColourKernel, DEFAULT_TILE_PX, HitKernel, Kernel, Rect, Renderer, SinkClosed, Stopped,
-    Tile, TileSink,
+    Cancel, ColourKernel, DEFAULT_TILE_PX, HitKernel, Kernel, LinearKernel, Rect, Renderer, Stopped,
 };
 pub use explain::{ExplainOptions, Explanation, explain};
 pub use image::RgbImage;
@@ -63,6 +62,12 @@ pub struct Tolerances {
     /// A pixel also passes when it matches any reference pixel of its 3 × 3
     /// neighbourhood (default false).
     pub edge_forgiving: bool,
+    /// Float images (PFM, OpenEXR), compared in linear radiance: the allowed difference
+    /// per channel grows by this share of the reference's value (default 0.001).
+    pub linear_rel: f64,
+    /// Float images: the allowed difference per channel at a reference value of 0
+    /// (default 0.0001).
+    pub linear_abs: f64,
 }
 
 impl Default for Tolerances {
@@ -73,6 +78,8 @@ impl Default for Tolerances {
             lambda_rel: 1e-6,
             normal_degrees: 0.1,
             edge_forgiving: false,
+            linear_rel: 1e-3,
+            linear_abs: 1e-4,
         }
     }
 }
@@ -95,6 +102,14 @@ impl Tolerances {
         }
         if !(0.0..=180.0).contains(&self.normal_degrees) {
             return bad("normal_degrees", "must be between 0 and 180");
+        }
+        for (field, x) in [
+            ("linear_rel", self.linear_rel),
+            ("linear_abs", self.linear_abs),
+        ] {
+            if !(x >= 0.0 && x.is_finite()) {
+                return bad(field, "must be a finite number ≥ 0");
+            }
         }
         Ok(())
     }
@@ -122,6 +137,12 @@ pub struct ToleranceOverrides {
     // On the command line a bare flag: present sets it, absent leaves the value beneath.
     #[arg(long, num_args = 0, default_missing_value = "true")]
     pub edge_forgiving: Option<bool>,
+    /// Float images: allowed linear difference as a share of the reference (default 0.001).
+    #[arg(long)]
+    pub linear_rel: Option<f64>,
+    /// Float images: allowed linear difference at 0 (default 0.0001).
+    #[arg(long)]
+    pub linear_abs: Option<f64>,
 }
 
 impl ToleranceOverrides {
@@ -133,6 +154,8 @@ impl ToleranceOverrides {
             lambda_rel: self.lambda_rel.unwrap_or(base.lambda_rel),
             normal_degrees: self.normal_degrees.unwrap_or(base.normal_degrees),
             edge_forgiving: self.edge_forgiving.unwrap_or(base.edge_forgiving),
+            linear_rel: self.linear_rel.unwrap_or(base.linear_rel),
+            linear_abs: self.linear_abs.unwrap_or(base.linear_abs),
         }
     }
 }
@@ -179,7 +202,8 @@ pub enum GradeError {
     Empty,
     /// The content is none of the accepted forms.
     #[error(
-        "cannot tell what the submission is: it is not a PNG, nor hit data as JSON, NDJSON, NPY or CSV (with a header)"
+        "cannot tell what the submission is: it is none of {}",
+        submission::ACCEPTED
     )]
     UnknownFormat,
     /// A PNG was expected but the bytes are not one.
@@ -273,29 +297,6 @@ impl GradeError {
     }
 }
 
-/// Collects a whole frame's pixels, row-major, from tiles in any order.
-struct FrameSink<T> {
-    width: u32,
-    pixels: Mutex<Vec<T>>,
-}
-
-impl<T: Send + Clone> TileSink<T> for FrameSink<T> {
-    fn tile(&self, tile: Tile<T>) -> Result<(), SinkClosed> {
-        let mut px = self
-            .pixels
-            .lock()
-            .map_err(|_| SinkClosed("a worker panicked".into()))?;
-        let r = tile.rect;
-        for (k, p) in tile.pixels.into_iter().enumerate() {
-            let (u, v) = (r.x + k as u32 % r.width, r.y + k as u32 / r.width);
-            if let Some(slot) = px.get_mut(v as usize * self.width as usize + u as usize) {
-                *slot = p;
-            }
-        }
-        Ok(())
-    }
-}
-
 /// Traces the whole frame with `kernel` on the current rayon pool, row-major.
 pub fn render_frame<K: Kernel>(
     kernel: &K,
@@ -306,10 +307,7 @@ pub fn render_frame<K: Kernel>(
 where
     K::Pixel: Clone + Default,
 {
-    let sink = FrameSink {
-        width,
-        pixels: Mutex::new(vec![K::Pixel::default(); width as usize * height as usize]),
-    };
+    let sink = FrameSink::new(Rect::frame(width, height));
     crate::render::run(
         kernel,
         Rect::frame(width, height),
@@ -321,9 +319,8 @@ where
         Stopped::Cancelled => GradeError::Cancelled,
         Stopped::Sink(s) => GradeError::Reference(s.to_string()),
     })?;
-    sink.pixels
-        .into_inner()
-        .map_err(|_| GradeError::Reference("a worker panicked".into()))
+    sink.into_pixels()
+        .ok_or_else(|| GradeError::Reference("a worker panicked".into()))
 }
 
 /// The reference image, exactly as `raytile render` writes it.
@@ -331,6 +328,14 @@ pub fn reference_image(r: &Renderer, cancel: &Cancel) -> Result<RgbImage, GradeE
     let (w, h) = (r.scene.width, r.scene.height);
     let px = render_frame(&ColourKernel(r), w, h, cancel)?;
     Ok(RgbImage::from_pixels(w, h, &px))
+}
+
+/// The reference's linear colours, before gamma and quantisation, exactly as
+/// `raytile render -o x.exr` writes them.
+pub fn reference_linear(r: &Renderer, cancel: &Cancel) -> Result<LinearImage, GradeError> {
+    let (w, h) = (r.scene.width, r.scene.height);
+    let px = render_frame(&LinearKernel(r), w, h, cancel)?;
+    Ok(LinearImage::from_pixels(w, h, &px))
 }
 
 /// The reference hit data, exactly as `raytile hits` writes it.
@@ -410,27 +415,44 @@ pub fn grade(
     let (w, h) = (r.scene.width, r.scene.height);
     match submission {
         Submission::Image(img) => {
-            if (img.width, img.height) != (w, h) {
+            let (iw, ih) = img.size();
+            if (iw, ih) != (w, h) {
                 return Err(GradeError::SizeMismatch {
-                    width: img.width,
-                    height: img.height,
+                    width: iw,
+                    height: ih,
                     expected_width: w,
                     expected_height: h,
                 });
             }
+            // A float image is compared in linear radiance; its statistics are those of
+            // both images as the renderer would quantise them.
             let started = std::time::Instant::now();
-            let reference = reference_image(r, &opts.cancel)?;
-            let ctx = diagnose_context(opts, started.elapsed());
-            let cmp = compare::images(&reference, &img, tol, opts.worst);
-            let image = report::ImageMetrics {
-                errors: metrics::error_stats(&reference, &img),
-                ssim: metrics::ssim(&reference, &img),
-                flip: opts.flip.then(|| metrics::flip(&reference, &img)),
+            let (reference, submitted, cmp) = match &img.pixels {
+                Raster::Rgb8(s) => {
+                    let reference = reference_image(r, &opts.cancel)?;
+                    let cmp = compare::images(&reference, s, tol, opts.worst);
+                    (reference, std::borrow::Cow::Borrowed(s), cmp)
+                }
+                Raster::Linear(s) => {
+                    let linear = reference_linear(r, &opts.cancel)?;
+                    let reference = linear.quantise(r.scene.gamma);
+                    let cmp = compare::linear(&linear, s, &reference, tol, opts.worst);
+                    let submitted = std::borrow::Cow::Owned(s.quantise(r.scene.gamma));
+                    (reference, submitted, cmp)
+                }
             };
-            let mut report = Report::new(png::NAME, w, h, tol, opts, cmp, Some(image));
+            let ctx = diagnose_context(opts, started.elapsed());
+            let image = report::ImageMetrics {
+                errors: metrics::error_stats(&reference, &submitted),
+                ssim: metrics::ssim(&reference, &submitted),
+                flip: opts.flip.then(|| metrics::flip(&reference, &submitted)),
+            };
+            let mut report = Report::new(img.format.name(), w, h, tol, opts, cmp, Some(image));
+            report.warnings = img.warnings();
+            // A float image is diagnosed as the renderer would quantise it.
             let against = diagnose::Against::Image {
                 reference: &reference,
-                submitted: &img,
+                submitted: &submitted,
             };
             report.diagnosis = diagnose::for_report(r, &report, against, tol, &ctx);
             Ok(report)

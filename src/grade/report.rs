@@ -14,7 +14,7 @@ use base64::Engine as _;
 use serde::Serialize;
 use serde_json::{Value, json};
 
-use super::compare::{Comparison, HitCounts, PixelValue, WorstPixel};
+use super::compare::{Comparison, HitCounts, LinearCounts, PixelValue, WorstPixel};
 use super::image::RgbImage;
 use super::metrics::{ErrorStats, FlipStats};
 use super::score::{self, Score};
@@ -70,6 +70,12 @@ pub struct Report {
     /// Failing pixels per check (hit data only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub hits: Option<HitCounts>,
+    /// Linear error statistics (float images only: PFM, OpenEXR).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub linear: Option<LinearCounts>,
+    /// What the grader warns of besides the verdict (a JPEG's lossy compression).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
     /// The worst pixels, worst first: failing ones, then those that differ but pass.
     pub worst: Vec<WorstPixel>,
     /// The mistakes that explain a failing submission (`docs/grading.md`, Diagnosis).
@@ -112,6 +118,10 @@ impl Report {
         let share = cmp.failing as f64 / pixels.max(1) as f64;
         let kind = if cmp.hits.is_some() { "hits" } else { "image" };
         let what = match &cmp.hits {
+            None if cmp.linear.is_some() => format!(
+                "differ from the reference's linear radiance by more than {} + {} × its value in some channel",
+                tol.linear_abs, tol.linear_rel
+            ),
             None => format!(
                 "differ from the reference by more than {}/255 in some channel",
                 tol.colour_abs
@@ -162,6 +172,8 @@ impl Report {
             tolerances: tol.clone(),
             image,
             hits: cmp.hits,
+            linear: cmp.linear,
+            warnings: Vec::new(),
             worst: cmp.worst,
             diagnosis: None,
             diff_png_base64: None,
@@ -198,6 +210,10 @@ fn opt_vec(v: &Option<[f64; 3]>) -> String {
 fn value_text(p: &PixelValue) -> String {
     match p {
         PixelValue::Colour { rgb } => format!("rgb({}, {}, {})", rgb[0], rgb[1], rgb[2]),
+        PixelValue::Linear { linear } => {
+            let c = linear.map(|x| x.map_or("not finite".into(), |x| format!("{x}")));
+            format!("linear({}, {}, {})", c[0], c[1], c[2])
+        }
         PixelValue::Hit { hit: false, .. } => "miss".into(),
         PixelValue::Hit {
             object,
@@ -220,6 +236,9 @@ fn worst_text(r: &Report, limit: usize) -> String {
         let mut detail = Vec::new();
         if let Some(e) = w.colour_error {
             detail.push(format!("off by {e}/255"));
+        }
+        if let Some(e) = w.linear_error {
+            detail.push(format!("linear difference {e:.3e}"));
         }
         if let Some(e) = w.lambda_rel_error {
             detail.push(format!("λ relative error {e:.3e}"));
@@ -257,6 +276,7 @@ pub fn to_text(r: &Report) -> String {
         summary_text,
         tolerances_text,
         score_text,
+        linear_text,
         image_text,
         hits_text,
         diagnosis_text,
@@ -269,6 +289,9 @@ pub fn to_text(r: &Report) -> String {
 
 fn summary_text(r: &Report, o: &mut String) {
     let _ = writeln!(o, "{}", r.summary);
+    for w in &r.warnings {
+        let _ = writeln!(o, "Warning: {w}");
+    }
 }
 
 fn tolerances_text(r: &Report, o: &mut String) {
@@ -299,6 +322,20 @@ fn score_text(r: &Report, o: &mut String) {
             );
         }
     }
+}
+
+fn linear_text(r: &Report, o: &mut String) {
+    let Some(l) = &r.linear else { return };
+    let t = &r.tolerances;
+    let _ = writeln!(
+        o,
+        "Linear radiance: tolerance {} + {} × the reference per channel; max difference {:.3e}, mean {:.3e}, {} channel(s) not finite",
+        num(t.linear_abs),
+        num(t.linear_rel),
+        l.max_abs_error,
+        l.mean_abs_error,
+        l.non_finite
+    );
 }
 
 fn image_text(r: &Report, o: &mut String) {

@@ -1,18 +1,27 @@
-//! A student's submission, parsed: an image (any PNG) or per-pixel hit data in one of
-//! the forms raytile itself writes (JSON, NDJSON, NPY, CSV).
+//! A student's submission, parsed: an image (PNG, PPM, BMP, TGA, JPEG; PFM and OpenEXR
+//! in linear floats) or per-pixel hit data in one of the forms raytile itself writes
+//! (JSON, NDJSON, NPY, CSV).
 //!
 //! Each form is read by its file in [`crate::format`], where its layout is described;
-//! here the form is chosen (from what the caller knows, a [`Hint`], or else from the
-//! bytes) and a reader's [`ReadError`] becomes the [`GradeError`] a report or a problem
-//! document shows. Nothing here trusts the bytes: every problem says where.
+//! here the form is chosen and a reader's [`ReadError`] becomes the [`GradeError`] a
+//! report or a problem document shows. Binary forms are told by their content (a file
+//! named `.png` that holds a JPEG is read as the JPEG it is); a [`Hint`] (what the caller
+//! knows: a file extension, a media type, `--format`) chooses among the text forms and
+//! names the image format expected when the content has no signature. Nothing here
+//! trusts the bytes: every problem says where.
 
 use serde::Deserialize;
 
 use super::GradeError;
 use super::image::RgbImage;
-use crate::format::png::{self, PNG_SIGNATURE};
+use crate::format::{
+    DecodeLimits, HitFormat, LinearImage, Raster, RasterFormat, ReadError, csv, json, ndjson, npy,
+};
 pub use crate::format::{Group, HitData, SubmittedHit};
-use crate::format::{HitFormat, ReadError, csv, json, ndjson, npy};
+
+/// Every accepted form, as the error for unrecognised content names them.
+pub const ACCEPTED: &str = "an image as PNG, PPM (or PGM, PBM, PAM), BMP, TGA, JPEG, PFM or \
+     OpenEXR, or hit data as JSON, NDJSON, NPY or CSV (with a header)";
 
 /// What the caller knows about the submission's format (a file extension, a media type,
 /// the command line's `--format`).
@@ -24,6 +33,18 @@ pub enum Hint {
     Auto,
     /// A PNG image.
     Png,
+    /// A Netpbm image: PPM (P3, P6), PGM, PBM or PAM.
+    Ppm,
+    /// A BMP image.
+    Bmp,
+    /// A TGA image.
+    Tga,
+    /// A JPEG image.
+    Jpeg,
+    /// A PFM float image (linear).
+    Pfm,
+    /// An OpenEXR float image (linear).
+    Exr,
     /// One JSON document (or a bare array of pixels).
     Json,
     /// One JSON object per line.
@@ -45,13 +66,30 @@ impl From<HitFormat> for Hint {
     }
 }
 
+impl From<RasterFormat> for Hint {
+    fn from(f: RasterFormat) -> Hint {
+        match f {
+            RasterFormat::Png => Hint::Png,
+            RasterFormat::Pnm => Hint::Ppm,
+            RasterFormat::Bmp => Hint::Bmp,
+            RasterFormat::Tga => Hint::Tga,
+            RasterFormat::Jpeg => Hint::Jpeg,
+            RasterFormat::Pfm => Hint::Pfm,
+            RasterFormat::Exr => Hint::Exr,
+        }
+    }
+}
+
 impl Hint {
-    /// The hint of a format name: `png`, `json`, `ndjson` (or `jsonl`), `npy`, `csv`, `auto`.
+    /// The hint of a format name or extension: an image's (`png`, `ppm`, `pgm`, `bmp`,
+    /// `tga`, `jpg`, `jpeg`, `pfm`, `exr`, …), hit data's (`json`, `ndjson` or `jsonl`,
+    /// `npy`, `csv`), or `auto`.
     pub fn from_name(s: &str) -> Option<Hint> {
         match s.trim().to_ascii_lowercase().as_str() {
             "auto" => Some(Hint::Auto),
-            png::NAME => Some(Hint::Png),
-            other => HitFormat::from_name(other).map(Hint::from),
+            other => RasterFormat::from_name(other)
+                .map(Hint::from)
+                .or_else(|| HitFormat::from_name(other).map(Hint::from)),
         }
     }
 
@@ -63,65 +101,218 @@ impl Hint {
             .unwrap_or(Hint::Auto)
     }
 
-    /// The hint of a media type (`image/png`, `application/json`, `application/x-ndjson`,
+    /// The hint of a media type (`image/png`, `image/x-portable-pixmap`, `image/jpeg`,
+    /// `image/x-exr`, …, `application/json`, `application/x-ndjson`,
     /// `application/x-npy`, `text/csv`); [`Hint::Auto`] for anything else.
     pub fn from_media_type(t: &str) -> Hint {
-        let essence = t.split(';').next().unwrap_or("").trim();
-        if essence.eq_ignore_ascii_case(png::MEDIA_TYPE) {
-            return Hint::Png;
+        RasterFormat::from_media_type(t)
+            .map(Hint::from)
+            .or_else(|| HitFormat::from_media_type(t).map(Hint::from))
+            .unwrap_or(Hint::Auto)
+    }
+
+    /// The image format it names, if any.
+    pub fn raster(self) -> Option<RasterFormat> {
+        Some(match self {
+            Hint::Png => RasterFormat::Png,
+            Hint::Ppm => RasterFormat::Pnm,
+            Hint::Bmp => RasterFormat::Bmp,
+            Hint::Tga => RasterFormat::Tga,
+            Hint::Jpeg => RasterFormat::Jpeg,
+            Hint::Pfm => RasterFormat::Pfm,
+            Hint::Exr => RasterFormat::Exr,
+            _ => return None,
+        })
+    }
+}
+
+/// The members of a JSON request's `submission` object that carry a file, and the form
+/// each names: `*_base64` members hold the file in base64, the others its text.
+pub const ENCODED_MEMBERS: [(&str, Hint); 12] = [
+    ("png_base64", Hint::Png),
+    ("ppm_base64", Hint::Ppm),
+    ("bmp_base64", Hint::Bmp),
+    ("tga_base64", Hint::Tga),
+    ("jpeg_base64", Hint::Jpeg),
+    ("pfm_base64", Hint::Pfm),
+    ("exr_base64", Hint::Exr),
+    ("image_base64", Hint::Auto),
+    ("npy_base64", Hint::Npy),
+    ("ppm", Hint::Ppm),
+    ("csv", Hint::Csv),
+    ("ndjson", Hint::Ndjson),
+];
+
+fn quoted(names: impl IntoIterator<Item = &'static str>) -> String {
+    names
+        .into_iter()
+        .map(|n| format!("`{n}`"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// What a JSON request's `submission` may be, in one sentence: every accepted member.
+pub fn submission_members() -> String {
+    format!(
+        "hit data (a document with {}, or an array of pixels), or an object with exactly one \
+         of {}",
+        quoted(json::DOCUMENT_FIELDS),
+        quoted(ENCODED_MEMBERS.map(|(n, _)| n))
+    )
+}
+
+/// Checks the member names of a JSON request's `submission` object that is not one of
+/// [`ENCODED_MEMBERS`] alone: each must be a field of a hit-data document, and the error
+/// for one that is not lists every accepted name.
+pub fn check_submission_members<'a>(
+    members: impl IntoIterator<Item = &'a str>,
+) -> Result<(), GradeError> {
+    let Some(name) = members
+        .into_iter()
+        .find(|k| !json::DOCUMENT_FIELDS.contains(k))
+    else {
+        return Ok(());
+    };
+    let message = if ENCODED_MEMBERS.iter().any(|(n, _)| *n == name) {
+        format!(
+            "must be the only member of `submission`; it is {}",
+            submission_members()
+        )
+    } else {
+        format!(
+            "is not an accepted member: `submission` is {}",
+            submission_members()
+        )
+    };
+    Err(GradeError::Unreadable(ReadError::BadValue {
+        at: format!("submission.{name}"),
+        message,
+    }))
+}
+
+/// A submitted image, decoded.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SubmittedImage {
+    /// The format it was in (told from its content).
+    pub format: RasterFormat,
+    /// Its pixels: 8-bit RGB, or linear floats (PFM, OpenEXR).
+    pub pixels: Raster,
+}
+
+impl From<RgbImage> for SubmittedImage {
+    /// An 8-bit image as if handed in as a PNG.
+    fn from(image: RgbImage) -> SubmittedImage {
+        SubmittedImage {
+            format: RasterFormat::Png,
+            pixels: Raster::Rgb8(image),
         }
-        HitFormat::from_media_type(t).map_or(Hint::Auto, Hint::from)
+    }
+}
+
+impl SubmittedImage {
+    /// Its width and height.
+    pub fn size(&self) -> (u32, u32) {
+        match &self.pixels {
+            Raster::Rgb8(i) => (i.width, i.height),
+            Raster::Linear(i) => (i.width, i.height),
+        }
+    }
+
+    /// What a report should warn of: a lossy format.
+    pub fn warnings(&self) -> Vec<String> {
+        match self.format {
+            RasterFormat::Jpeg => vec![
+                "the submission is a JPEG, whose lossy compression changes pixels slightly: \
+                 it rarely matches the reference exactly (even at quality 100 without chroma \
+                 subsampling, pixels are off by up to about 3/255); hand in a PNG or PPM to be \
+                 graded without that loss"
+                    .to_owned(),
+            ],
+            _ => Vec::new(),
+        }
+    }
+
+    /// The 8-bit image, when it is one.
+    pub fn rgb8(&self) -> Option<&RgbImage> {
+        match &self.pixels {
+            Raster::Rgb8(i) => Some(i),
+            Raster::Linear(_) => None,
+        }
+    }
+
+    /// The linear image, when it is one.
+    pub fn linear(&self) -> Option<&LinearImage> {
+        match &self.pixels {
+            Raster::Linear(i) => Some(i),
+            Raster::Rgb8(_) => None,
+        }
     }
 }
 
 /// A parsed submission.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Submission {
-    /// An image, converted to 8-bit RGB.
-    Image(RgbImage),
+    /// An image.
+    Image(SubmittedImage),
     /// Per-pixel hit data.
     Hits(HitData),
 }
 
 impl Submission {
-    /// Parses a submission's bytes; `hint` picks the parser, [`Hint::Auto`] tells from the
-    /// content (PNG and NPY by their signatures, JSON by `{` or `[`, several JSON lines as
-    /// NDJSON, else CSV with a header).
+    /// Parses a submission's bytes with the default decoding limits (see
+    /// [`Submission::parse_with`]).
     pub fn parse(bytes: &[u8], hint: Hint) -> Result<Submission, GradeError> {
-        Submission::parse_impl(bytes, hint, None)
+        Submission::parse_with(bytes, hint, &DecodeLimits::default())
     }
 
-    /// [`Submission::parse`] for a scene of `width × height` pixels: a PNG of another
-    /// size is refused from its header, before it is decompressed (what a server should
-    /// call; hit data is checked against the frame when graded).
+    /// [`Submission::parse`] for a scene of `width × height` pixels: an image of another
+    /// size is refused from its header, before it is decompressed, and decoding may take
+    /// what that frame needs (what a server should call; hit data is checked against the
+    /// frame when graded).
     pub fn parse_for_frame(
         bytes: &[u8],
         hint: Hint,
         width: u32,
         height: u32,
     ) -> Result<Submission, GradeError> {
-        Submission::parse_impl(bytes, hint, Some((width, height)))
+        Submission::parse_with(bytes, hint, &DecodeLimits::for_frame(width, height))
     }
 
-    fn parse_impl(
+    /// Parses a submission's bytes under `limits` (the frame an image must match, the
+    /// memory its decoding may take). An image or NPY signature decides whatever the
+    /// hint says; otherwise an image hint decodes as that format (PNG: the bytes must
+    /// carry its signature), a hit-data hint picks the parser, and [`Hint::Auto`] tells
+    /// JSON by `{` or `[`, several JSON lines as NDJSON, else CSV with a header.
+    pub fn parse_with(
         bytes: &[u8],
         hint: Hint,
-        frame: Option<(u32, u32)>,
+        limits: &DecodeLimits,
     ) -> Result<Submission, GradeError> {
         if bytes.iter().all(u8::is_ascii_whitespace) {
             return Err(GradeError::Empty);
         }
-        let hint = match hint {
-            Hint::Auto => detect(bytes)?,
-            h => h,
+        let image = match (RasterFormat::sniff(bytes), hint.raster()) {
+            (Some(f), _) => Some(f),
+            (None, Some(RasterFormat::Png)) => return Err(GradeError::NotPng),
+            (None, f) => f,
+        };
+        if let Some(format) = image {
+            let pixels = crate::format::raster::decode(bytes, format, limits)?;
+            return Ok(Submission::Image(SubmittedImage { format, pixels }));
+        }
+        let hint = if bytes.starts_with(npy::NPY_MAGIC) {
+            Hint::Npy
+        } else if hint == Hint::Auto {
+            detect_text(bytes)?
+        } else {
+            hint
         };
         let hits = match hint {
-            Hint::Png => return Ok(Submission::Image(RgbImage::decode_png(bytes, frame)?)),
             Hint::Json => json::read(bytes),
             Hint::Ndjson => ndjson::read(bytes),
             Hint::Npy => npy::read(bytes),
             Hint::Csv => csv::read(bytes),
-            Hint::Auto => return Err(GradeError::UnknownFormat),
+            _ => return Err(GradeError::UnknownFormat),
         };
         Ok(Submission::Hits(hits?))
     }
@@ -135,13 +326,7 @@ impl Submission {
     }
 }
 
-fn detect(bytes: &[u8]) -> Result<Hint, GradeError> {
-    if bytes.starts_with(PNG_SIGNATURE) {
-        return Ok(Hint::Png);
-    }
-    if bytes.starts_with(npy::NPY_MAGIC) {
-        return Ok(Hint::Npy);
-    }
+fn detect_text(bytes: &[u8]) -> Result<Hint, GradeError> {
     let text = bytes.trim_ascii_start();
     match text.first() {
         Some(b'[') => Ok(Hint::Json),
@@ -177,6 +362,7 @@ impl From<ReadError> for GradeError {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::format::RasterFormat;
     use crate::format::npy::{npy_header, npy_record};
 
     fn pixels(h: &HitData) -> Vec<SubmittedHit> {
@@ -352,6 +538,58 @@ mod tests {
             matches!(e, GradeError::Unreadable(ReadError::Npy(_))),
             "{e}"
         );
+    }
+
+    #[test]
+    fn an_image_signature_decides_whatever_the_hint_says() {
+        let p3 = b"P3\n1 1\n255\n1 2 3\n";
+        for hint in [Hint::Auto, Hint::Png, Hint::Jpeg, Hint::Csv, Hint::Json] {
+            match Submission::parse(p3, hint).unwrap() {
+                Submission::Image(img) => {
+                    assert_eq!(img.format, RasterFormat::Pnm);
+                    assert_eq!(img.rgb8().unwrap().data, vec![1, 2, 3]);
+                    assert!(img.linear().is_none() && img.warnings().is_empty());
+                }
+                Submission::Hits(_) => panic!("hits"),
+            }
+        }
+        // Without a signature an image hint names the decoder, which says what is wrong.
+        let e = Submission::parse(b"u,v,hit\n", Hint::Tga).unwrap_err();
+        assert!(e.to_string().starts_with("the TGA file is corrupt"), "{e}");
+        assert_eq!(Hint::from_name("JPG"), Some(Hint::Jpeg));
+        assert_eq!(Hint::from_name("pgm"), Some(Hint::Ppm));
+        assert_eq!(Hint::from_media_type("image/x-exr"), Hint::Exr);
+        assert_eq!(Hint::from_path(std::path::Path::new("out.pfm")), Hint::Pfm);
+        for f in RasterFormat::ALL {
+            assert_eq!(Hint::from(f).raster(), Some(f));
+        }
+    }
+
+    #[test]
+    fn a_submission_object_s_unknown_member_lists_every_accepted_name() {
+        let m = |v: serde_json::Value| {
+            v.as_object()
+                .unwrap()
+                .keys()
+                .map(|k| &*String::leak(k.clone()))
+                .collect::<Vec<&str>>()
+        };
+        assert!(check_submission_members(m(serde_json::json!({"pixels": [], "width": 1}))).is_ok());
+        let e = check_submission_members(m(serde_json::json!({"pgm": "P2"}))).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            text.starts_with("submission.pgm: is not an accepted member"),
+            "{text}"
+        );
+        for (name, _) in ENCODED_MEMBERS {
+            assert!(text.contains(&format!("`{name}`")), "{name}: {text}");
+        }
+        for name in json::DOCUMENT_FIELDS {
+            assert!(text.contains(&format!("`{name}`")), "{name}: {text}");
+        }
+        let e =
+            check_submission_members(m(serde_json::json!({"csv": "", "pixels": []}))).unwrap_err();
+        assert!(e.to_string().contains("must be the only member"), "{e}");
     }
 
     #[test]

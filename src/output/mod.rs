@@ -3,11 +3,13 @@
 //! ([`RowAssembler`]) and hand the rows to the writers of [`crate::format`].
 
 pub mod footprint;
+pub mod frame;
 pub mod hits;
 pub mod png;
 pub mod rows;
 
 pub use footprint::footprint;
+pub use frame::FrameSink;
 pub use hits::HitSink;
 pub use png::PngSink;
 pub use rows::RowAssembler;

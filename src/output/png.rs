@@ -168,7 +168,11 @@ mod tests {
         let pieces = encode(region, shape.cut(region));
         let whole = encode(region, region.tiles(32));
         assert!(pieces == whole, "the bytes depend on how rows were fed");
-        let img = crate::format::png::RgbImage::decode_png(&pieces, Some((40_000, 3))).unwrap();
+        use crate::format::raster::{self, DecodeLimits, Raster, RasterFormat};
+        let limits = DecodeLimits::for_frame(40_000, 3);
+        let Raster::Rgb8(img) = raster::decode(&pieces, RasterFormat::Png, &limits).unwrap() else {
+            panic!("a PNG decodes to 8-bit RGB")
+        };
         assert_eq!(img.get(39_999, 2), colour(39_999, 2));
     }
 }

@@ -118,6 +118,22 @@ impl Kernel for ColourKernel<'_> {
     }
 }
 
+/// Reports each pixel's linear colour, before gamma and quantisation: what float images
+/// (PFM, OpenEXR) hold. [`ColourKernel`] is this kernel followed by [`quantise`]; kept
+/// apart so that the 8-bit path stays as it is.
+pub struct LinearKernel<'a>(pub &'a Renderer);
+
+impl Kernel for LinearKernel<'_> {
+    type Pixel = [f32; 3];
+    #[inline]
+    fn pixel(&self, u: u32, v: u32, rays: &mut u64) -> [f32; 3] {
+        let mut n = RayCount(0);
+        let c = self.0.pixel_colour(u, v, &mut n);
+        *rays += n.0;
+        c.as_vec3().to_array()
+    }
+}
+
 /// Reports each pixel's first hit (`docs/spec/hit-data.md`).
 pub struct HitKernel<'a>(pub &'a Renderer);
 

@@ -63,13 +63,14 @@ use super::extract::{
 use super::job;
 use super::memory::{Charge, Reservation};
 use crate::format::footprint::{self as decoding, Decoding, Family};
+use crate::format::raster::RasterFormat;
 use crate::format::{HitFormat, ReadError};
 use crate::grade::answer::{ReportForm, write_report, write_ungradable};
 use crate::grade::report::{LmsOptions, Visibility};
 use crate::grade::score::ScoringMode;
 use crate::grade::{
     self, GradeError, GradeOptions, Hint, Scoring, ScoringOverrides, Submission,
-    ToleranceOverrides, Tolerances,
+    ToleranceOverrides, Tolerances, submission,
 };
 use crate::json;
 use crate::render::{Renderer, Work};
@@ -492,15 +493,18 @@ fn split(sent: GradeForm, query: &GradeQuery) -> Result<Split, ApiError> {
     })
 }
 
-/// The family a hint names, for the estimate of decoding (`None`: told from the bytes).
-fn family(hint: Hint) -> Option<Family> {
+/// The family of the submission for the estimate of decoding, as its reader will tell
+/// it: an image signature first, then the hint (`None`: told from the bytes).
+fn family(bytes: &[u8], hint: Hint) -> Option<Family> {
+    if let Some(f) = RasterFormat::sniff(bytes) {
+        return Some(Family::Image(f));
+    }
     match hint {
-        Hint::Auto => None,
-        Hint::Png => Some(Family::Png),
         Hint::Json => Some(Family::Hits(HitFormat::Json)),
         Hint::Ndjson => Some(Family::Hits(HitFormat::Ndjson)),
         Hint::Npy => Some(Family::Hits(HitFormat::Npy)),
         Hint::Csv => Some(Family::Hits(HitFormat::Csv)),
+        h => h.raster().map(Family::Image),
     }
 }
 
@@ -509,13 +513,13 @@ fn family(hint: Hint) -> Option<Family> {
 /// header, with the grader's own error.
 fn decoding_of(s: &Split, scene: &Scene) -> Decoding {
     let nothing = Decoding { peak: 0, held: 0 };
-    let family = family(s.hint);
-    let png = family == Some(Family::Png)
-        || (family.is_none() && s.submission.starts_with(crate::format::png::PNG_SIGNATURE));
-    if png && decoding::png_size(&s.submission).ok() != Some((scene.width, scene.height)) {
+    let family = family(&s.submission, s.hint);
+    if family == Some(Family::Image(RasterFormat::Png))
+        && decoding::png_size(&s.submission).ok() != Some((scene.width, scene.height))
+    {
         return nothing;
     }
-    decoding::submission(&s.submission, family).unwrap_or(nothing)
+    decoding::submission(&s.submission, family, (scene.width, scene.height)).unwrap_or(nothing)
 }
 
 /// The whole of grading, charged step by step to the request's `memory` before each
@@ -549,11 +553,10 @@ async fn prepare(
     let scene = scene.map_err(|e| ApiError::scene(e, "the `scene` part", s.scene_at))?;
     let built = scene_footprint::built(&scene);
     let decode = decoding_of(&s, &scene);
-    let image = match family(s.hint) {
-        Some(f) => f == Family::Png,
-        None => s.submission.starts_with(crate::format::png::PNG_SIGNATURE),
-    };
-    let grading = crate::grade::footprint::grading(scene.width, scene.height, image);
+    let image = matches!(family(&s.submission, s.hint), Some(Family::Image(_)));
+    let pixels = scene.width as u64 * scene.height as u64;
+    let diagnosed = pixels <= app.config.diagnosis_max_pixels;
+    let grading = crate::grade::footprint::grading(scene.width, scene.height, image, diagnosed);
     let (w, h) = (scene.width, scene.height);
     let frame = |at: &str| {
         Problem::new(
@@ -623,12 +626,7 @@ fn strict<T: serde::de::DeserializeOwned>(bytes: &[u8], what: &'static str) -> R
 }
 
 /// The members that carry a submission file inside the JSON form, and its form.
-const ENCODED: [(&str, Hint); 4] = [
-    ("png_base64", Hint::Png),
-    ("npy_base64", Hint::Npy),
-    ("csv", Hint::Csv),
-    ("ndjson", Hint::Ndjson),
-];
+const ENCODED: &[(&str, Hint)] = &submission::ENCODED_MEMBERS;
 
 /// The submission of the JSON form as bytes and their form: hit data as JSON (an object
 /// or an array, its text as sent), or `{"png_base64" | "npy_base64" | "csv" | "ndjson":
@@ -643,14 +641,19 @@ fn submission_member(raw: Box<RawValue>) -> Result<(Bytes, Hint), GradeError> {
     let text = raw.get();
     let encoded = if text.starts_with('{') {
         // The members as slices of the text: nothing of a large document is copied.
-        serde_json::from_str::<std::collections::BTreeMap<&str, &RawValue>>(text)
-            .ok()
-            .filter(|m| m.len() == 1)
-            .and_then(|m| {
-                let (k, v) = m.into_iter().next()?;
+        let members = serde_json::from_str::<std::collections::BTreeMap<&str, &RawValue>>(text)
+            .unwrap_or_default();
+        let one = (members.len() == 1)
+            .then(|| members.iter().next())
+            .flatten()
+            .and_then(|(&k, &v)| {
                 let &(name, hint) = ENCODED.iter().find(|(name, _)| *name == k)?;
                 Some((name, hint, v))
-            })
+            });
+        if one.is_none() {
+            submission::check_submission_members(members.keys().copied())?;
+        }
+        one
     } else {
         None
     };
@@ -674,8 +677,7 @@ fn submission_member(raw: Box<RawValue>) -> Result<(Bytes, Hint), GradeError> {
     }
     Err(bad(
         "submission",
-        "must be hit data (a JSON document or array of pixels), or an object with one of \
-         `png_base64`, `npy_base64`, `csv`, `ndjson`",
+        &format!("must be {}", submission::submission_members()),
     ))
 }
 

@@ -12,7 +12,7 @@
 //! | reading the body | `Content-Length` (the body limit when chunked) × the copies the route keeps | [`super::extract::read_charged`] |
 //! | parsing and validating a scene | from a cheap pre-scan of the JSON text | [`crate::scene::footprint::parse_peak`] |
 //! | the built scene (objects, triangles, BVH) | from the validated scene's counts | [`crate::scene::footprint::built`] |
-//! | decoding a submission | pixels × bytes a pixel, from the PNG or NPY header; JSON, NDJSON and CSV from the body size | [`crate::format::footprint::submission`] |
+//! | decoding a submission | pixels × bytes a pixel, from the PNG or NPY header (other images: from the frame); JSON, NDJSON and CSV from the body size | [`crate::format::footprint::submission`] |
 //! | the reference and the comparison of a grade | from the frame | [`crate::grade::footprint::grading`] |
 //! | a streamed answer's buffers | the channel and the row bands of the sinks | [`crate::output::footprint`] |
 //!

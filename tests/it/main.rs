@@ -6,6 +6,8 @@
 //! - `diagnose`: naming the mistake behind a failing submission, each mistake made by
 //!   `wrong_tracer` (a student's tracer written from the specification, with a flag per
 //!   mistake) or by moving the reference's pixels;
+//! - `formats`: every submission format, from files written by other encoders
+//!   (`tests/fixtures/submissions/`), by `raytile grade` and `POST /v1/grade`;
 //! - `cluster`: two `raytile serve` processes behind nginx, and `render --servers`
 //!   finishing a frame while a replica dies (the nginx test is ignored unless asked for:
 //!   `bash .ci/test-all` installs nginx and runs it);
@@ -34,6 +36,7 @@ mod cli;
 mod cluster;
 mod cost;
 mod diagnose;
+mod formats;
 mod geometry;
 mod grade;
 mod imports;

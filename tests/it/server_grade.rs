@@ -647,9 +647,10 @@ async fn submissions_that_cannot_be_graded_are_422() {
         assert!(doc["detail"].as_str().unwrap().contains(detail), "{doc}");
     }
 
-    // `format` overrides what the part says.
+    // `format` overrides what the part says (an image's signature overrides both).
+    let ragged = b"u,v,hit,lambda,nx,ny,nz\n0,0\n".to_vec();
     let doc = problem(
-        grade(&app, "?format=csv", form(&scene, png.clone(), "s.png")).await,
+        grade(&app, "?format=csv", form(&scene, ragged, "s.png")).await,
         422,
         "invalid-submission",
     )

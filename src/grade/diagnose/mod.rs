@@ -430,7 +430,7 @@ mod tests {
             ..GradeOptions::default()
         };
         let tol = Tolerances::default();
-        let rep = grade(&r, Submission::Image(flipped(&r)), &tol, &opts).unwrap();
+        let rep = grade(&r, Submission::Image(flipped(&r).into()), &tol, &opts).unwrap();
         let d = rep.diagnosis.as_ref().unwrap();
         assert!(d.mistakes.is_empty() && d.tried.is_empty());
         assert!(
@@ -445,7 +445,7 @@ mod tests {
             },
             ..GradeOptions::default()
         };
-        let rep = grade(&r, Submission::Image(flipped(&r)), &tol, &opts).unwrap();
+        let rep = grade(&r, Submission::Image(flipped(&r).into()), &tol, &opts).unwrap();
         assert_eq!(rep.diagnosis, None);
     }
 
@@ -462,7 +462,13 @@ mod tests {
         };
         // Flipped and in BGR order: no entry explains it, so every entry is wanted.
         let sub = wrong::bgr(&flipped(&r));
-        let rep = grade(&r, Submission::Image(sub), &Tolerances::default(), &opts).unwrap();
+        let rep = grade(
+            &r,
+            Submission::Image(sub.into()),
+            &Tolerances::default(),
+            &opts,
+        )
+        .unwrap();
         let d = rep.diagnosis.as_ref().unwrap();
         assert!(d.mistakes.is_empty());
         // Moving and recolouring pixels costs no render: those are still tried.
@@ -487,7 +493,7 @@ mod tests {
         let opts = GradeOptions::default();
         let rep = grade(
             &r,
-            Submission::Image(flipped(&r)),
+            Submission::Image(flipped(&r).into()),
             &Tolerances::default(),
             &opts,
         )
@@ -500,7 +506,7 @@ mod tests {
         // entry is tried.
         let rep = grade(
             &r,
-            Submission::Image(wrong::bgr(&flipped(&r))),
+            Submission::Image(wrong::bgr(&flipped(&r)).into()),
             &Tolerances::default(),
             &opts,
         )
