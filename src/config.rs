@@ -114,8 +114,9 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYTILE_STALL_SECONDS", default_value_t = DEFAULT_STALL_SECONDS, value_parser = parse_seconds)]
     pub stall_seconds: f64,
 
-    /// Connections open at once; past it a new connection gets 503 with `Retry-After`
-    /// and is closed. Keep it below the process's file-descriptor limit (`ulimit -n`).
+    /// Connections open at once (lowered at start to fit the file-descriptor limit); at
+    /// the cap a client that speaks displaces a silent or idle connection, and gets 503
+    /// with `Retry-After` only when every connection has a request in flight.
     #[arg(long, env = "RAYTILE_MAX_CONNECTIONS", default_value_t = DEFAULT_MAX_CONNECTIONS, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
     pub max_connections: u32,
 

@@ -21,7 +21,8 @@
 //!   body (`/scene/objects/0/material`).
 //!
 //! The query mirrors the command line's options: the tolerances (`colour_abs`,
-//! `max_fail_share`, `lambda_rel`, `normal_degrees`, `edge_forgiving`, each overriding
+//! `max_fail_share`, `lambda_rel`, `normal_degrees`, `linear_rel`, `linear_abs`,
+//! `edge_forgiving`, each overriding
 //! the body's `tolerances`), `worst`, `inline_diff`, `flip`, `format` (the submission's
 //! form, overriding the part's), `report` (`json`, `text`, `gradescope`,
 //! `prairielearn`), `max_score`, `visibility`, `stdout_visibility`, the scoring
@@ -180,6 +181,8 @@ impl<S: Send + Sync> FromRequestParts<S> for GradeQuery {
                     parse_param(k, &v, number)?,
                 )?,
                 "lambda_rel" => once(&mut q.tolerances.lambda_rel, k, parse_param(k, &v, number)?)?,
+                "linear_rel" => once(&mut q.tolerances.linear_rel, k, parse_param(k, &v, number)?)?,
+                "linear_abs" => once(&mut q.tolerances.linear_abs, k, parse_param(k, &v, number)?)?,
                 "normal_degrees" => once(
                     &mut q.tolerances.normal_degrees,
                     k,
@@ -226,8 +229,8 @@ impl<S: Send + Sync> FromRequestParts<S> for GradeQuery {
                 "format" => {
                     let h = Hint::from_name(&v).ok_or_else(|| {
                         ApiError::BadRequest(format!(
-                            "query parameter `format` must be `auto`, `png`, `json`, `ndjson`, \
-                             `npy` or `csv`, not `{v}`"
+                            "query parameter `format` must be `auto`, `png`, `ppm`, `bmp`, `tga`, \
+                             `jpeg`, `pfm`, `exr`, `json`, `ndjson`, `npy` or `csv`, not `{v}`"
                         ))
                     })?;
                     once(&mut q.format, k, h)?;
@@ -236,7 +239,8 @@ impl<S: Send + Sync> FromRequestParts<S> for GradeQuery {
                 other => {
                     return Err(ApiError::BadRequest(format!(
                         "unknown query parameter `{other}`: this route takes `colour_abs`, \
-                         `max_fail_share`, `lambda_rel`, `normal_degrees`, `edge_forgiving`, \
+                         `max_fail_share`, `lambda_rel`, `normal_degrees`, `linear_rel`, \
+                         `linear_abs`, `edge_forgiving`, \
                          `worst`, `inline_diff`, `flip`, `format`, `report`, `max_score`, \
                          `visibility`, `stdout_visibility`, `scoring`, `zero_share`, \
                          `error_k`, `weight_hit_miss`, `weight_object`, `weight_lambda`, \

@@ -356,6 +356,23 @@ async fn the_server_grades_every_format_the_same() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_linear_tolerances_are_query_parameters_too() {
+    let app = TestApp::spawn().await;
+    let half = || form(read("ok-half.exr"), "s.exr");
+    let res = post(&app, "", half()).await;
+    assert_eq!(res.headers()["x-raytile-verdict"], "pass");
+    // Half floats fail a tenfold tighter tolerance, given in the query as on the command line.
+    let res = post(&app, "?linear_rel=0.0001&linear_abs=0", half()).await;
+    assert_eq!(res.status(), 200);
+    assert_eq!(res.headers()["x-raytile-verdict"], "fail");
+    let r: Value = res.json().await.unwrap();
+    assert_eq!(r["tolerances"]["linear_rel"], 0.0001, "{r}");
+    assert_eq!(r["worst"][0]["failures"], json!(["linear"]), "{r}");
+    let res = post(&app, "?linear_abs=x", half()).await;
+    problem(res, 400, "bad-request").await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn json_requests_carry_images_as_members_and_unknown_members_list_every_name() {
     let app = TestApp::spawn().await;
     let b64 = |name: &str| base64::engine::general_purpose::STANDARD.encode(read(name));
