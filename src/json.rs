@@ -76,7 +76,7 @@ pub fn non_finite(s: &str) -> Option<f64> {
 
 /// `bytes` with every bare `NaN`, `Infinity` and `-Infinity` outside strings replaced by
 /// its stand-in string of the same length; borrowed when there is none.
-fn quote_non_finite(bytes: &[u8]) -> Cow<'_, [u8]> {
+pub fn quote_non_finite(bytes: &[u8]) -> Cow<'_, [u8]> {
     const WORDS: [&[u8]; 3] = [b"NaN", b"Infinity", b"-Infinity"];
     let mut out: Option<Vec<u8>> = None;
     let (mut in_string, mut escaped) = (false, false);

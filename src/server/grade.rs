@@ -423,6 +423,50 @@ struct Envelope {
     tolerances: Option<Tolerances>,
 }
 
+/// The envelope as borrowed slices of the body, to find where its members lie.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct EnvelopeAt<'a> {
+    #[serde(borrow)]
+    scene: &'a RawValue,
+    #[serde(borrow)]
+    submission: &'a RawValue,
+    #[serde(default, borrow)]
+    tolerances: Option<&'a RawValue>,
+}
+
+/// A JSON form that is JSON only once Python's bare `NaN`, `Infinity` and `-Infinity`
+/// are read as numbers, as `json.dumps` writes the hit data of a miss: its submission
+/// keeps them (its reader accepts them), while the scene and the tolerances are taken
+/// from the body as sent, so that a non-finite number there is still refused with its
+/// position. None when that does not make the body an envelope either.
+fn non_finite_envelope(bytes: &[u8]) -> Option<Envelope> {
+    let quoted = json::quote_non_finite(bytes);
+    if matches!(quoted, std::borrow::Cow::Borrowed(_)) {
+        return None;
+    }
+    let text = std::str::from_utf8(&quoted).ok()?;
+    let at: EnvelopeAt = serde_json::from_str(text).ok()?;
+    // The stand-ins are as long as the words, so a member lies at the same bytes of
+    // the body as sent.
+    let original = |raw: &RawValue| -> Option<String> {
+        let start = raw.get().as_ptr() as usize - text.as_ptr() as usize;
+        let sent = bytes.get(start..start + raw.get().len())?;
+        String::from_utf8(sent.to_vec()).ok()
+    };
+    let scene = RawValue::from_string(original(at.scene)?).ok()?;
+    let tolerances = match at.tolerances {
+        Some(t) => Some(serde_json::from_str(&original(t)?).ok()?),
+        None => None,
+    };
+    let submission = RawValue::from_string(at.submission.get().to_owned()).ok()?;
+    Some(Envelope {
+        scene,
+        submission,
+        tolerances,
+    })
+}
+
 /// The request's parts, split out and checked for structure, with what parsing them
 /// will cost.
 struct Split {
@@ -466,7 +510,10 @@ fn split(sent: GradeForm, query: &GradeQuery) -> Result<Split, ApiError> {
             (scene, submission, hint, tolerances, "", "")
         }
         GradeForm::Json(bytes) => {
-            let env: Envelope = strict(&bytes, "the body")?;
+            let env: Envelope = match strict(&bytes, "the body") {
+                Ok(env) => env,
+                Err(e) => non_finite_envelope(&bytes).ok_or(e)?,
+            };
             drop(bytes);
             let scene = Bytes::from(String::from(Box::<str>::from(env.scene)));
             let (submission, hint) =

@@ -356,6 +356,27 @@ async fn the_server_grades_every_format_the_same() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_json_request_as_python_writes_it_with_nan_for_misses_is_graded() {
+    let app = TestApp::spawn().await;
+    // What `json.dumps({"scene": scene, "submission": hits})` sends: bare NaN for misses.
+    let hits = String::from_utf8(read("ok-hits-nan.json")).unwrap();
+    let scene = String::from_utf8(read("scene.json")).unwrap();
+    let body = format!("{{\"scene\": {scene}, \"submission\": {hits}}}");
+    assert!(body.contains("NaN"));
+    let res = app.post_json("/v1/grade", body, &[]).await;
+    assert_eq!(res.status(), 200);
+    assert_eq!(res.headers()["x-raytile-verdict"], "pass");
+    // A NaN in the scene is still refused, with where it is.
+    let mut doc = scene_doc();
+    doc["camera"]["focal_length"] = json!("NAN_HERE");
+    let bad_scene = doc.to_string().replace("\"NAN_HERE\"", "NaN");
+    let body = format!("{{\"scene\": {bad_scene}, \"submission\": {hits}}}");
+    let res = app.post_json("/v1/grade", body, &[]).await;
+    let doc = problem(res, 400, "invalid-json").await;
+    assert!(doc["column"].as_u64().unwrap() > 0, "{doc}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_linear_tolerances_are_query_parameters_too() {
     let app = TestApp::spawn().await;
     let half = || form(read("ok-half.exr"), "s.exr");
