@@ -228,19 +228,17 @@ mod tests {
 
     /// A 16-bit RGBA PNG, the widest layout (8 bytes a pixel before reduction).
     fn rgba16(w: u32, h: u32) -> Vec<u8> {
-        let mut out = Vec::new();
-        {
-            let mut enc = ::png::Encoder::new(&mut out, w, h);
-            enc.set_color(::png::ColorType::Rgba);
-            enc.set_depth(::png::BitDepth::Sixteen);
-            let mut wr = enc.write_header().unwrap();
-            // Varied colours (so that it does not compress to nothing), opaque.
-            let data: Vec<u8> = (0..w as usize * h as usize * 8)
-                .map(|i| if i % 8 >= 6 { 0xFF } else { (i % 251) as u8 })
-                .collect();
-            wr.write_image_data(&data).unwrap();
-        }
-        out
+        // Varied colours (so that it does not compress to nothing), opaque.
+        let data: Vec<u8> = (0..w as usize * h as usize * 8)
+            .map(|i| if i % 8 >= 6 { 0xFF } else { (i % 251) as u8 })
+            .collect();
+        crate::format::png::tests::encode(
+            w,
+            h,
+            ::png::ColorType::Rgba,
+            ::png::BitDepth::Sixteen,
+            &data,
+        )
     }
 
     #[test]

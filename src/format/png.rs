@@ -223,10 +223,17 @@ impl<'a> PngReader<'a> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn encode(w: u32, h: u32, ct: png::ColorType, depth: png::BitDepth, data: &[u8]) -> Vec<u8> {
+    /// A PNG written by the `png` crate's encoder: the other readers' tests use it too.
+    pub(crate) fn encode(
+        w: u32,
+        h: u32,
+        ct: png::ColorType,
+        depth: png::BitDepth,
+        data: &[u8],
+    ) -> Vec<u8> {
         let mut out = Vec::new();
         let mut enc = png::Encoder::new(&mut out, w, h);
         enc.set_color(ct);

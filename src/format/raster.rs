@@ -400,16 +400,7 @@ mod tests {
         }
     }
 
-    fn png(w: u32, h: u32, ct: png::ColorType, depth: png::BitDepth, data: &[u8]) -> Vec<u8> {
-        let mut out = Vec::new();
-        let mut enc = png::Encoder::new(&mut out, w, h);
-        enc.set_color(ct);
-        enc.set_depth(depth);
-        let mut wr = enc.write_header().unwrap();
-        wr.write_image_data(data).unwrap();
-        wr.finish().unwrap();
-        out
-    }
+    use crate::format::png::tests::encode as png;
 
     #[test]
     fn png_of_every_colour_type_becomes_rgb8() {

@@ -15,13 +15,13 @@
 //! whole deadline.
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 use prometheus::IntGauge;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 
 use super::error::ApiError;
 use super::metrics::Metrics;
+use super::places::{Place, Places};
 use super::shutdown::{Phase, Shutdown};
 use crate::config::ServeArgs;
 use crate::render::cost::{self, CostError, Work};
@@ -32,8 +32,7 @@ use crate::scene::{Problem, SceneError};
 #[derive(Debug)]
 pub struct Admission {
     permits: Arc<Semaphore>,
-    queue: usize,
-    waiting: AtomicUsize,
+    queue: Places,
     metrics: Metrics,
 }
 
@@ -50,14 +49,15 @@ impl Drop for RenderSlot {
     }
 }
 
-/// One place in the queue, given back when dropped (also when the client leaves while
-/// waiting, which drops the handler's future).
-struct Waiting<'a>(&'a Admission);
+/// One place in the queue, counted by the queue-depth gauge while held.
+struct Queued<'a> {
+    _place: Place<'a>,
+    depth: &'a IntGauge,
+}
 
-impl Drop for Waiting<'_> {
+impl Drop for Queued<'_> {
     fn drop(&mut self) {
-        self.0.waiting.fetch_sub(1, Ordering::SeqCst);
-        self.0.metrics.queue_depth.dec();
+        self.depth.dec();
     }
 }
 
@@ -66,8 +66,7 @@ impl Admission {
     pub fn new(slots: usize, queue: usize, metrics: Metrics) -> Admission {
         Admission {
             permits: Arc::new(Semaphore::new(slots.max(1))),
-            queue,
-            waiting: AtomicUsize::new(0),
+            queue: Places::new(queue),
             metrics,
         }
     }
@@ -81,18 +80,15 @@ impl Admission {
         if let Ok(p) = self.permits.clone().try_acquire_owned() {
             return Ok(self.slot(p));
         }
-        if self
-            .waiting
-            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |w| {
-                (w < self.queue).then_some(w + 1)
-            })
-            .is_err()
-        {
+        let Some(place) = self.queue.enter() else {
             self.metrics.reject("saturated");
             return Err(ApiError::Saturated);
-        }
+        };
         self.metrics.queue_depth.inc();
-        let _place = Waiting(self);
+        let _queued = Queued {
+            _place: place,
+            depth: &self.metrics.queue_depth,
+        };
         tokio::select! {
             p = self.permits.clone().acquire_owned() => match p {
                 Ok(p) => Ok(self.slot(p)),
@@ -126,12 +122,12 @@ impl Admission {
 
     /// Requests waiting for a slot now.
     pub fn waiting(&self) -> usize {
-        self.waiting.load(Ordering::SeqCst)
+        self.queue.taken()
     }
 
     /// Whether the next render request would be refused.
     pub fn is_saturated(&self) -> bool {
-        self.permits.available_permits() == 0 && self.waiting() >= self.queue
+        self.permits.available_permits() == 0 && self.waiting() >= self.queue.limit()
     }
 }
 

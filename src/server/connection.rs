@@ -31,7 +31,7 @@ use std::collections::HashMap;
 use std::future::Future;
 use std::io;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 use std::time::Duration;
@@ -48,6 +48,7 @@ use tokio::time::Instant;
 use tower::ServiceExt;
 
 use super::error::ApiError;
+use super::places::Places;
 use crate::config::ConnectionLimits;
 
 /// Accepts connections on `listener` and serves `app` on each, under `limits`, until
@@ -65,7 +66,7 @@ pub async fn serve_connections(
     };
     let slots = Arc::new(Semaphore::new(limits.max_connections));
     let open = Arc::new(Registry::default());
-    let pending = Arc::new(AtomicUsize::new(0));
+    let probation = Arc::new(Places::new(MOST_WAITING));
     let (closing_tx, closing_rx) = watch::channel(false);
     let mut drain = std::pin::pin!(drain);
     loop {
@@ -100,7 +101,7 @@ pub async fn serve_connections(
         }
         // A newcomer on probation holds a descriptor beyond the cap, so only a few may
         // wait at once (within the reserve); the others are refused at once.
-        let Some(waiting) = Waiting::enter(&pending) else {
+        let Some(waiting) = probation.enter_owned() else {
             tracing::warn!(%peer, limit = limits.max_connections, "too many connections: refused");
             refuse(tcp, limits.max_connections);
             continue;
@@ -153,27 +154,6 @@ const EVICTION_WAIT: Duration = Duration::from_secs(1);
 /// Newcomers at the cap that may be on probation, or waiting for the slot of a
 /// connection closed for them, at once.
 const MOST_WAITING: usize = 16;
-
-/// One newcomer waiting for an evicted connection's slot; counted until dropped.
-struct Waiting(Arc<AtomicUsize>);
-
-impl Waiting {
-    /// A place among the [`MOST_WAITING`], if one is free.
-    fn enter(count: &Arc<AtomicUsize>) -> Option<Waiting> {
-        count
-            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| {
-                (n < MOST_WAITING).then_some(n + 1)
-            })
-            .ok()
-            .map(|_| Waiting(count.clone()))
-    }
-}
-
-impl Drop for Waiting {
-    fn drop(&mut self) {
-        self.0.fetch_sub(1, Ordering::SeqCst);
-    }
-}
 
 /// The connection cap the descriptor limit allows: `wanted`, or fewer when the process
 /// may not open that many files. The soft limit is raised to the hard one first, as

@@ -32,13 +32,13 @@
 //! keep it: fair, cancellation-safe, and with `u32` permits good for 4 TiB.
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 use prometheus::IntGauge;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 
 use super::error::ApiError;
 use super::metrics::Metrics;
+use super::places::Places;
 use super::shutdown::{Phase, Shutdown};
 use crate::scene::Problem;
 
@@ -96,8 +96,7 @@ impl Charge {
 pub struct MemoryBudget {
     units: Arc<Semaphore>,
     total_bytes: u64,
-    queue: usize,
-    waiting: AtomicUsize,
+    queue: Places,
     metrics: Metrics,
 }
 
@@ -146,15 +145,6 @@ impl Drop for Reservation {
     }
 }
 
-/// A place among the requests waiting for memory, given back when dropped.
-struct Waiting<'a>(&'a MemoryBudget);
-
-impl Drop for Waiting<'_> {
-    fn drop(&mut self) {
-        self.0.waiting.fetch_sub(1, Ordering::SeqCst);
-    }
-}
-
 /// `bytes` in whole units, rounded up (and at most what the ledger can hold).
 fn units(bytes: u64) -> u32 {
     bytes.div_ceil(UNIT_BYTES).min(u32::MAX as u64) as u32
@@ -170,8 +160,7 @@ impl MemoryBudget {
             // What is charged is rounded up; so is the budget, not to refuse a charge of
             // exactly the budget.
             total_bytes,
-            queue,
-            waiting: AtomicUsize::new(0),
+            queue: Places::new(queue),
             metrics,
         }
     }
@@ -188,7 +177,7 @@ impl MemoryBudget {
 
     /// Requests waiting for memory now.
     pub fn waiting(&self) -> usize {
-        self.waiting.load(Ordering::SeqCst)
+        self.queue.taken()
     }
 
     /// A reservation holding nothing (to be grown by [`MemoryBudget::grow`]).
@@ -230,17 +219,10 @@ impl MemoryBudget {
         if let Ok(p) = self.units.clone().try_acquire_many_owned(n) {
             return Ok(self.held(p));
         }
-        if self
-            .waiting
-            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |w| {
-                (w < self.queue).then_some(w + 1)
-            })
-            .is_err()
-        {
+        let Some(_place) = self.queue.enter() else {
             self.metrics.reject("memory");
             return Err(ApiError::MemoryFull);
-        }
-        let _place = Waiting(self);
+        };
         tokio::select! {
             p = self.units.clone().acquire_many_owned(n) => match p {
                 Ok(p) => Ok(self.held(p)),

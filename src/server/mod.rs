@@ -26,6 +26,7 @@ pub mod job;
 pub mod memory;
 pub mod metrics;
 pub mod observe;
+pub mod places;
 pub mod render;
 pub mod scenes;
 pub mod shutdown;
