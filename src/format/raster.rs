@@ -543,6 +543,24 @@ mod tests {
     }
 
     #[test]
+    fn an_exr_compressed_with_b44_is_refused_before_its_codec_can_overflow() {
+        // Found by the submission fuzz target: a B44 block on which the codec's
+        // decompressor overflows (a panic wherever overflow checks are on).
+        let bytes = std::fs::read(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/fixtures/submissions/bad-b44.exr"
+        ))
+        .unwrap();
+        for limits in [DecodeLimits::for_frame(32, 24), none()] {
+            let e = decode(&bytes, RasterFormat::Exr, &limits).unwrap_err();
+            assert!(
+                matches!(&e, ReadError::CorruptImage { message, .. } if message.contains("B44")),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
     fn sizes_are_checked_from_the_header_and_memory_is_bounded() {
         let img = RgbImage {
             width: 3,
