@@ -31,6 +31,7 @@ pub mod render;
 pub mod scenes;
 pub mod shutdown;
 pub mod stream;
+pub mod studio;
 pub mod trace;
 pub mod validate;
 
@@ -119,6 +120,7 @@ pub fn app(state: AppState) -> Router {
         .merge(scenes::router())
         .merge(health::router())
         .merge(metrics::router())
+        .merge(studio::router())
         .fallback(error::not_found)
         // After the routes: it applies to the routes that exist when it is called.
         .method_not_allowed_fallback(error::method_not_allowed)

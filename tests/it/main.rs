@@ -27,6 +27,8 @@
 //!   not read (parked renders, resumed or stopped);
 //! - `server_grade`: `POST /v1/trace` and `POST /v1/grade` as an instructor's scripts
 //!   use them;
+//! - `studio`: the web page at `GET /` in a real browser (ignored unless asked for:
+//!   `bash .ci/test-all` installs chromium and the page's npm packages and runs it);
 //! - `validation`: every class of bad document, with its pointer.
 
 mod support;
@@ -49,5 +51,6 @@ mod schema;
 mod server;
 mod server_grade;
 mod streaming;
+mod studio;
 mod validation;
 mod wrong_tracer;

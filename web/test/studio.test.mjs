@@ -1,0 +1,175 @@
+// The studio in a real browser (Debian's chromium driven by playwright-core), against a
+// running raytile server. Run by tests/it/studio.rs, which starts the server and makes
+// the fixtures; by hand:
+//
+//   node web/test/studio.test.mjs URL FIXTURES SHOTS
+//
+// URL is the server, FIXTURES a folder holding `flipped.png` (the lecture's reference
+// flipped vertically) and `big.json` (a scene that renders for many seconds), SHOTS the
+// folder for a screenshot of each step. Each case prints `ok` or `not ok` with why, and
+// the last line counts them.
+import { chromium } from "playwright-core";
+import { mkdirSync } from "node:fs";
+import { readFileSync } from "node:fs";
+
+const [url, fixtures, shots] = process.argv.slice(2);
+if (!url || !fixtures || !shots) {
+  console.error("usage: node studio.test.mjs URL FIXTURES SHOTS");
+  process.exit(2);
+}
+mkdirSync(shots, { recursive: true });
+
+const browser = await chromium.launch({
+  executablePath: process.env.CHROMIUM ?? "/usr/bin/chromium",
+  headless: true,
+  args: ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update", "--no-first-run"],
+});
+const page = await browser.newPage({ viewport: { width: 1400, height: 900 } });
+const errors = [];
+page.on("pageerror", (e) => errors.push(e.message));
+// A refused request is logged by the browser itself; the page shows its problem.
+page.on("console", (m) => m.type() === "error" && !/^Failed to load resource/.test(m.text()) && errors.push(m.text()));
+const byId = (id) => page.getByTestId(id);
+
+let passed = 0;
+let failed = 0;
+async function step(name, body) {
+  try {
+    await body();
+    passed++;
+    console.log(`ok - ${name}`);
+  } catch (e) {
+    failed++;
+    console.log(`not ok - ${name}\n  ${String(e.stack ?? e).split("\n").join("\n  ")}`);
+  }
+  await page.screenshot({ path: `${shots}/${name.replace(/\W+/g, "-")}.png` }).catch(() => {});
+}
+function check(cond, what) {
+  if (!cond) throw new Error(what);
+}
+const timeout = 30_000;
+
+async function rays() {
+  const text = await (await fetch(`${url}/metrics`)).text();
+  return Number(text.match(/^raytile_rays_traced_total (\S+)$/m)[1]);
+}
+
+async function setScene(text) {
+  await page.evaluate((t) => {
+    const v = window.studio.view;
+    v.dispatch({ changes: { from: 0, to: v.state.doc.length, insert: t } });
+  }, text);
+}
+
+await step("load the page, pick the lecture scene, render it", async () => {
+  await page.goto(url);
+  await byId("example-picker").selectOption({ label: /^lecture/ }).catch(async () => {
+    const value = await page.$eval("[data-testid=example-picker]", (s) =>
+      [...s.options].find((o) => o.textContent.startsWith("lecture")).value);
+    await byId("example-picker").selectOption(value);
+  });
+  await page.waitForFunction(() => window.studio.view.state.doc.toString().includes('"ball"'), null, { timeout });
+  await byId("render-button").click();
+  await page.waitForFunction(() => {
+    const img = document.querySelector("[data-testid=render-image]");
+    return img.complete && img.naturalWidth === 5 && /rendered/.test(document.querySelector("[data-testid=render-status]").textContent);
+  }, null, { timeout });
+  const box = await byId("render-image").boundingBox();
+  check(box.width >= 100, `the 5 × 5 image is zoomed to ${box.width} px`);
+  const rendering = await page.evaluate(() => getComputedStyle(document.querySelector("[data-testid=render-image]")).imageRendering);
+  check(rendering === "pixelated", `image-rendering is ${rendering}`);
+  const statusText = await byId("render-status").textContent();
+  check(/rays/.test(statusText), `the status says ${statusText}`);
+});
+
+await step("click pixel (2, 2) and read lambda = 2 in the trace panel", async () => {
+  const box = await byId("render-image").boundingBox();
+  await page.mouse.click(box.x + (2.5 / 5) * box.width, box.y + (2.5 / 5) * box.height);
+  await page.waitForFunction(() => /λ = 2\b/.test(document.querySelector("[data-testid=trace-panel]").textContent), null, { timeout });
+  const text = await byId("trace-panel").textContent();
+  check(/\(2, 2\)|u = 2/.test(text) || text.includes("2"), "the trace names the pixel");
+});
+
+await step("a typo in the editor shows the problem at its pointer", async () => {
+  const doc = await page.evaluate(() => window.studio.view.state.doc.toString());
+  const at = doc.indexOf("focal_length");
+  check(at > 0, "the lecture scene has a focal length");
+  await page.evaluate((from) => window.studio.view.dispatch({ selection: { anchor: from, head: from + "focal_length".length } }), at);
+  await page.locator(".cm-content").focus();
+  await page.keyboard.type("focal_lenght");
+  const item = page.locator("#problems li", { hasText: "/camera/focal_lenght" });
+  await item.first().waitFor({ timeout });
+  const mark = page.locator(".cm-lintRange-error");
+  await mark.first().waitFor({ timeout });
+  // The marked range is the misspelt field's value: the line that holds it.
+  const line = await page.locator(".cm-line", { has: mark.first() }).first().textContent();
+  check(line.includes("focal_lenght"), `the mark is on "${line}"`);
+  await page.keyboard.press("Control+z");
+  await page.waitForFunction(() => document.querySelectorAll("#problems li").length === 0, null, { timeout });
+});
+
+await step("a PNG flipped vertically fails, with its difference image", async () => {
+  await byId("grade-input").setInputFiles(`${fixtures}/flipped.png`);
+  await page.locator("[data-testid=grade-result] .verdict").waitFor({ timeout });
+  const verdict = await page.locator("[data-testid=grade-result] .verdict").textContent();
+  check(verdict === "FAIL", `the verdict is ${verdict}`);
+  const text = await byId("grade-result").textContent();
+  check(/upside down/i.test(text), `the diagnosis names the flip: ${text}`);
+  await page.waitForFunction(() => {
+    const img = document.querySelector("[data-testid=diff-image]");
+    return !img.hidden && img.complete && img.naturalWidth === 5;
+  }, null, { timeout });
+});
+
+await step("hit data in false colour", async () => {
+  await page.getByRole("button", { name: "Hit data" }).click();
+  await byId("hits-view").waitFor({ state: "visible", timeout });
+  await page.locator("#legend", { hasText: "ball" }).waitFor({ timeout });
+  const box = await byId("hits-view").boundingBox();
+  await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
+  await page.locator("#hover", { hasText: "ball" }).waitFor({ timeout });
+  await page.getByRole("button", { name: "Hit data" }).click();
+});
+
+await step("an invalid scene's render shows its problem document", async () => {
+  await setScene('{"version": 1, "image": {"width": 0, "height": 5}, "camera": {}, "objects": [], "lights": []}');
+  await byId("render-button").click();
+  await page.waitForFunction(() => document.querySelector("[data-testid=render-status]").classList.contains("error"), null, { timeout });
+  const text = await byId("render-status").textContent();
+  check(/invalid|scene/i.test(text), `the status says ${text}`);
+  check(await page.locator("#problems li", { hasText: "/image/width" }).count() > 0, "the problem lists /image/width");
+});
+
+await step("cancel a large render and the ray counter stops", async () => {
+  await setScene(readFileSync(`${fixtures}/big.json`, "utf8"));
+  const before = await rays();
+  await byId("render-button").click();
+  const deadline = Date.now() + timeout;
+  while ((await rays()) <= before) {
+    check(Date.now() < deadline, "the render never started");
+    await new Promise((r) => setTimeout(r, 100));
+  }
+  await page.getByRole("button", { name: "Cancel" }).click();
+  await page.locator("[data-testid=render-status]", { hasText: "cancelled" }).waitFor({ timeout });
+  // A render stops within a tile of its client leaving: let that tile finish.
+  let settled = await rays();
+  for (let i = 0; i < 50; i++) {
+    await new Promise((r) => setTimeout(r, 500));
+    const now = await rays();
+    if (now === settled) break;
+    settled = now;
+  }
+  await new Promise((r) => setTimeout(r, 1500));
+  const after = await rays();
+  check(after === settled, `the counter went on from ${settled} to ${after}`);
+  check(after > before, "some rays were traced");
+});
+
+await step("the page raised no error", async () => {
+  check(errors.length === 0, errors.join("\n"));
+});
+
+await browser.close();
+console.log(`screenshots: ${shots}`);
+console.log(`${passed} passed, ${failed} failed`);
+process.exit(failed ? 1 : 0);
