@@ -117,6 +117,12 @@ async function pick(href) {
   const res = await fetch(href);
   if (!res.ok) { status((await problemOf(res)).line, true); return; }
   setScene(await res.text());
+  // Another scene: the last grading and trace were of the one before.
+  $("grade-result").replaceChildren();
+  $("grade-file").value = "";
+  $("diff").hidden = true;
+  $("submission").hidden = true;
+  $("trace").textContent = "Render, then click a pixel to see how its colour was computed.";
   status(`loaded ${href.split("/").pop()}`);
 }
 
@@ -168,6 +174,12 @@ async function render() {
     }
     state.width = Number(res.headers.get("x-raytile-width"));
     state.height = Number(res.headers.get("x-raytile-height"));
+    // A new image: the old one's hit data and selected pixel no longer apply.
+    hits = null;
+    state.selected = null;
+    $("hits-canvas").hidden = true;
+    $("legend").replaceChildren();
+    applyZoom(true);
     const total = state.width * state.height;
     const reader = res.body.getReader();
     const parts = [];
@@ -186,7 +198,6 @@ async function render() {
       }
     }
     showBlob(parts);
-    applyZoom(true);
     const rays = (await raysTraced()) - before;
     const secs = ((performance.now() - start) / 1000).toFixed(2);
     status(`rendered ${state.width}×${state.height} in ${secs} s · ${Number.isFinite(rays) ? rays.toLocaleString() : "?"} rays`);
@@ -209,13 +220,16 @@ document.addEventListener("keydown", (e) => {
 function applyZoom(fit) {
   if (!state.width) return;
   if (fit) {
-    state.zoom = Math.max(1, Math.min(64, Math.floor(480 / Math.max(state.width, state.height))));
-    $("zoom").value = state.zoom;
+    // Small images by whole steps (each pixel a crisp square), large ones shrunk to fit.
+    const stage = $("stage");
+    const fits = Math.min((stage.clientWidth - 40) / state.width, (stage.clientHeight - 40) / state.height);
+    state.zoom = fits >= 1 ? Math.min(64, Math.floor(fits)) : Math.max(fits, 0.05);
+    $("zoom").value = Math.max(1, Math.round(state.zoom));
   }
   const w = state.width * state.zoom;
   const h = state.height * state.zoom;
   for (const el of [$("image"), $("hits-canvas")]) { el.style.width = `${w}px`; el.style.height = `${h}px`; }
-  $("zoom-out").textContent = `${state.zoom}×`;
+  $("zoom-out").textContent = state.zoom >= 1 ? `${state.zoom}×` : `${Math.round(state.zoom * 100)} %`;
   drawGrid();
 }
 

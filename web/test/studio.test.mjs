@@ -129,6 +129,7 @@ await step("hit data in false colour", async () => {
   await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
   await page.locator("#hover", { hasText: "ball" }).waitFor({ timeout });
   await page.getByRole("button", { name: "Hit data" }).click();
+  await byId("hits-view").waitFor({ state: "hidden", timeout });
 });
 
 await step("an invalid scene's render shows its problem document", async () => {
@@ -163,6 +164,22 @@ await step("cancel a large render and the ray counter stops", async () => {
   const after = await rays();
   check(after === settled, `the counter went on from ${settled} to ${after}`);
   check(after > before, "some rays were traced");
+});
+
+await step("the showcase scene, rendered and traced", async () => {
+  const value = await page.$eval("[data-testid=example-picker]", (s) =>
+    [...s.options].find((o) => o.textContent.startsWith("showcase")).value);
+  await byId("example-picker").selectOption(value);
+  await page.waitForFunction(() => window.studio.view.state.doc.toString().includes("1024"), null, { timeout });
+  await byId("render-button").click();
+  await page.waitForFunction(() => {
+    const img = document.querySelector("[data-testid=render-image]");
+    return img.complete && img.naturalWidth === 1024 && /rendered/.test(document.querySelector("[data-testid=render-status]").textContent);
+  }, null, { timeout: 120_000 });
+  const box = await byId("render-image").boundingBox();
+  check(box.width <= 1024 && box.width > 200, `the image fits the stage (${box.width} px wide)`);
+  await page.mouse.click(box.x + box.width * 0.5, box.y + box.height * 0.55);
+  await page.waitForFunction(() => /Pixel \(/.test(document.querySelector("[data-testid=trace-panel]").textContent), null, { timeout });
 });
 
 await step("the page raised no error", async () => {
