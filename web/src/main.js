@@ -275,6 +275,33 @@ async function trace(u, v) {
     method: "POST", headers: { "content-type": "application/json" }, body: view.state.doc.toString(),
   });
   $("trace").textContent = res.ok ? await res.text() : (await problemOf(res)).line;
+  if (!res.ok) return;
+  const tree = await fetch(`/v1/trace?u=${u}&v=${v}`, {
+    method: "POST", headers: { "content-type": "application/json" }, body: view.state.doc.toString(),
+  });
+  if (tree.ok) $("trace-tree").replaceChildren(treeOf("ray tree (JSON)", await tree.json(), true));
+}
+
+/** A JSON value as nested <details>, each object or array folded until opened. */
+function treeOf(label, value, open = false) {
+  if (value === null || typeof value !== "object") {
+    const leaf = el("div", "", "leaf");
+    leaf.append(el("span", `${label}: `, "key"), el("span", JSON.stringify(value), "val"));
+    return leaf;
+  }
+  const d = el("details");
+  d.open = open;
+  const n = Array.isArray(value) ? `[${value.length}]` : `{${Object.keys(value).length}}`;
+  d.append(el("summary", `${label} ${n}`));
+  // Children are built when first opened: a deep tree stays cheap until explored.
+  const fill = () => {
+    if (d.dataset.filled) return;
+    d.dataset.filled = "1";
+    for (const [k, v] of Object.entries(value)) d.append(treeOf(k, v));
+  };
+  if (open) fill();
+  d.addEventListener("toggle", fill);
+  return d;
 }
 for (const id of ["image", "hits-canvas"]) {
   $(id).addEventListener("click", (e) => { const p = pixelAt(e); if (p) trace(...p); });

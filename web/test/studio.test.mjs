@@ -87,7 +87,12 @@ await step("click pixel (2, 2) and read lambda = 2 in the trace panel", async ()
   await page.mouse.click(box.x + (2.5 / 5) * box.width, box.y + (2.5 / 5) * box.height);
   await page.waitForFunction(() => /λ = 2\b/.test(document.querySelector("[data-testid=trace-panel]").textContent), null, { timeout });
   const text = await byId("trace-panel").textContent();
-  check(/\(2, 2\)|u = 2/.test(text) || text.includes("2"), "the trace names the pixel");
+  check(text.startsWith("Pixel (2, 2)"), `the trace names another pixel: ${text.slice(0, 40)}`);
+  // The JSON ray tree beside it, folded: opening a branch shows its fields.
+  const top = page.locator("#trace-tree > details > summary");
+  await top.waitFor({ timeout });
+  check(/ray tree/.test(await top.textContent()), "the ray tree is offered");
+  check(await page.locator("#trace-tree .leaf, #trace-tree details details").count() > 0, "the tree has branches");
 });
 
 await step("a typo in the editor shows the problem at its pointer", async () => {
