@@ -122,6 +122,7 @@ async function pick(href) {
   $("grade-file").value = "";
   $("diff").hidden = true;
   $("submission").hidden = true;
+  $("wipe").hidden = true;
   $("trace").textContent = "Render, then click a pixel to see how its colour was computed.";
   status(`loaded ${href.split("/").pop()}`);
 }
@@ -401,10 +402,26 @@ $("grade-file").addEventListener("change", async (e) => {
     $("diff").src = `data:image/png;base64,${r.diff_png_base64}`;
     $("diff").hidden = false;
   }
+  $("wipe").hidden = true;
   if (file.type.startsWith("image/")) {
-    $("submission").src = URL.createObjectURL(file);
+    const url = URL.createObjectURL(file);
+    $("submission").src = url;
     $("submission").hidden = false;
+    // The reference is the render on screen, when it is of this scene's size.
+    const img = $("image");
+    if (img.src && img.naturalWidth === r.width && img.naturalHeight === r.height) {
+      $("wipe-ref").src = img.src;
+      $("wipe-sub").src = url;
+      $("wipe").hidden = false;
+      wipe();
+    }
   }
 });
+
+/** The submission shown right of the slider, the reference left of it. */
+function wipe() {
+  $("wipe-sub").style.clipPath = `inset(0 0 0 ${$("wipe-at").value}%)`;
+}
+$("wipe-at").addEventListener("input", wipe);
 
 loadExamples();

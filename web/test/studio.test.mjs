@@ -124,14 +124,18 @@ await step("a PNG flipped vertically fails, with its difference image", async ()
     const img = document.querySelector("[data-testid=diff-image]");
     return !img.hidden && img.complete && img.naturalWidth === 5;
   }, null, { timeout });
+  // The reference on screen and the submission, under one slider.
+  await page.locator("#wipe").waitFor({ state: "visible", timeout });
+  await page.locator("#wipe-at").fill("20");
+  const clip = await page.$eval("#wipe-sub", (i) => i.style.clipPath);
+  check(clip === "inset(0px 0px 0px 20%)" || clip === "inset(0 0 0 20%)", `the slider clips at ${clip}`);
 });
 
 await step("hit data in false colour", async () => {
   await page.getByRole("button", { name: "Hit data" }).click();
   await byId("hits-view").waitFor({ state: "visible", timeout });
   await page.locator("#legend", { hasText: "ball" }).waitFor({ timeout });
-  const box = await byId("hits-view").boundingBox();
-  await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
+  await byId("hits-view").hover();
   await page.locator("#hover", { hasText: "ball" }).waitFor({ timeout });
   await page.getByRole("button", { name: "Hit data" }).click();
   await byId("hits-view").waitFor({ state: "hidden", timeout });
