@@ -4,7 +4,8 @@
 // their JSON pointers in the editor.
 import { basicSetup, EditorView } from "codemirror";
 import { keymap } from "@codemirror/view";
-import { Prec } from "@codemirror/state";
+import { Compartment, Prec } from "@codemirror/state";
+import { oneDark } from "@codemirror/theme-one-dark";
 import { json, jsonParseLinter } from "@codemirror/lang-json";
 import { linter, lintGutter } from "@codemirror/lint";
 import { autocompletion } from "@codemirror/autocomplete";
@@ -73,12 +74,18 @@ async function lintScene(v) {
   return problems.map((p) => ({ ...rangeAt(v.state, p.pointer ?? ""), severity: "error", message: `${p.pointer}: ${p.message}` }));
 }
 
+// The editor's colours follow the system's theme, as the page's do.
+const dark = matchMedia("(prefers-color-scheme: dark)");
+const theme = new Compartment();
+dark.addEventListener("change", () => view.dispatch({ effects: theme.reconfigure(dark.matches ? oneDark : []) }));
+
 let saveTimer = 0;
 const view = new EditorView({
   parent: $("editor"),
   doc: localStorage.getItem(STORE) ?? "",
   extensions: [
     basicSetup,
+    theme.of(dark.matches ? oneDark : []),
     json(),
     lintGutter(),
     linter(lintScene, { delay: 400 }),

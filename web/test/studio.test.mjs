@@ -191,6 +191,13 @@ await step("the showcase scene, rendered and traced", async () => {
   await page.waitForFunction(() => /Pixel \(/.test(document.querySelector("[data-testid=trace-panel]").textContent), null, { timeout });
 });
 
+await step("the dark theme follows the system", async () => {
+  await page.emulateMedia({ colorScheme: "dark" });
+  const bg = await page.evaluate(() => getComputedStyle(document.body).backgroundColor);
+  const [r, g, b] = bg.match(/\d+/g).map(Number);
+  check(r + g + b < 150, `the background is ${bg}`);
+});
+
 await step("the page raised no error", async () => {
   check(errors.length === 0, errors.join("\n"));
 });
