@@ -298,7 +298,7 @@ fn grade_scene(
         .filter_map(|p| p.report.as_ref()?.diagnosis.as_ref())
         .flat_map(|d| d.mistakes.iter())
         .filter_map(|m| {
-            serde_json::to_value(&m.mistake)
+            serde_json::to_value(m.mistake)
                 .ok()?
                 .as_str()
                 .map(String::from)
