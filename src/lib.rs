@@ -2,6 +2,8 @@
 //! split into tiles traced on all cores, with outputs that stream.
 #![forbid(unsafe_code)]
 
+/// Assignments: several scenes graded together, with visibility per scene.
+pub mod assignment;
 /// The command line: render, hits, validate, serve, healthcheck.
 pub mod cli;
 /// The server's configuration (flags and environment).

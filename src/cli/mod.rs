@@ -3,6 +3,7 @@
 //! files; `main.rs` only calls [`run`]. `render --servers` (in `distributed`) renders
 //! one frame across several servers.
 
+mod assignment;
 pub mod distributed;
 mod grade;
 mod input;
@@ -38,6 +39,8 @@ pub enum Command {
     Trace(grade::TraceArgs),
     /// Grade a submission (a PNG or hit data) against the scene's reference.
     Grade(grade::GradeArgs),
+    /// Grade a whole assignment offline: each file of DIR for the scene its stem names.
+    GradeAssignment(assignment::GradeAssignmentArgs),
     /// Serve the HTTP API (the default when no command is given).
     Serve(crate::config::ServeArgs),
     /// Probe a running server's `/healthz`: exit 0 when it answers 200, 1 otherwise.
@@ -78,6 +81,7 @@ pub fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
         Some(Command::Validate(a)) => local::validate(a),
         Some(Command::Trace(a)) => grade::trace(a),
         Some(Command::Grade(a)) => grade::grade(a),
+        Some(Command::GradeAssignment(a)) => assignment::grade_assignment(a),
         Some(Command::Serve(a)) => serve::serve(a),
         Some(Command::Healthcheck(a)) => serve::healthcheck(a),
         // No command: serve, configured by the environment alone.

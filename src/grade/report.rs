@@ -542,7 +542,7 @@ fn worst_text_limited(r: &Report, limit: usize) -> String {
 }
 
 /// Text as a Markdown code block, so that Gradescope's `md` format keeps its layout.
-fn md_block(text: &str) -> String {
+pub(crate) fn md_block(text: &str) -> String {
     format!("```text\n{}\n```", text.trim_end())
 }
 

@@ -8,7 +8,7 @@ pub mod document;
 pub mod footprint;
 pub mod limits;
 pub mod problem;
-mod strict_json;
+pub(crate) mod strict_json;
 pub mod validate;
 
 use std::sync::Arc;

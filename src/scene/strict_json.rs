@@ -28,6 +28,15 @@ pub(crate) struct Duplicates {
 }
 
 impl Duplicates {
+    /// The duplicated members as problems, with a note counting those not listed.
+    pub(crate) fn into_problems(self) -> Vec<Problem> {
+        let mut list = self.list;
+        if self.dropped > 0 {
+            list.push(Problem::new("", format!("{}{NOT_LISTED}", self.dropped)));
+        }
+        list
+    }
+
     fn add(&mut self, at: Option<&Link<'_>>, key: &str) {
         if self.list.len() < MAX_PROBLEMS {
             self.list.push(Problem::new(

@@ -1,6 +1,8 @@
 //! The integration tests, one binary. Modules:
 //! - `support`: helpers (the built binary, scene files, temporary outputs);
 //! - `support_server`: a `TestApp` (the real router on a loopback port), scene makers;
+//! - `assignment`: `raytile grade-assignment`, a whole assignment graded offline, hidden
+//!   scenes' feedback redacted;
 //! - `cli`: `raytile render | hits | validate` as a user runs them;
 //! - `cost`: the ray budget, its refusals and its cut renders;
 //! - `diagnose`: naming the mistake behind a failing submission, each mistake made by
@@ -31,6 +33,7 @@
 //!   `bash .ci/test-all` installs chromium and the page's npm packages and runs it);
 //! - `validation`: every class of bad document, with its pointer.
 
+mod assignment;
 mod support;
 mod support_server;
 
