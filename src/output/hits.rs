@@ -6,9 +6,9 @@
 //! frame is never built in one buffer).
 
 use std::io::{self, Write};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, TryLockError};
 
-use super::rows::{PIECE_BYTES, RowAssembler};
+use super::rows::{PIECE_BYTES, QUEUED_TILES, RowAssembler};
 use crate::format::npy::{NPY_RECORD_BYTES, npy_header, npy_record_bytes};
 use crate::format::{HitFormat, PixelHit, csv, json, ndjson};
 use crate::geometry::Surface;
@@ -19,11 +19,27 @@ fn closed(e: impl std::fmt::Display) -> SinkClosed {
     SinkClosed(e.to_string())
 }
 
+/// A tile of encoded NPY records.
+type RecordTile = Tile<[u8; NPY_RECORD_BYTES]>;
+
 /// A [`TileSink`] writing hit data of `region` in one of the formats.
 pub struct HitSink<W: Write + Send> {
     scene: Arc<Scene>,
     format: HitFormat,
     state: Mutex<HitState<W>>,
+    /// Boxed: the sink stays small beside the others, and only NPY uses it.
+    npy: Box<NpyQueue>,
+}
+
+/// What NPY workers hand over between them.
+#[derive(Default)]
+struct NpyQueue {
+    /// Encoded tiles waiting for whichever worker holds the state to write them, so a
+    /// worker whose tile is encoded goes back to tracing instead of waiting for the
+    /// writer (at most [`QUEUED_TILES`]; past that, workers wait as before).
+    queue: Mutex<Vec<RecordTile>>,
+    /// Record buffers of tiles already written, reused for the next tiles.
+    spare: Mutex<Vec<Vec<[u8; NPY_RECORD_BYTES]>>>,
 }
 
 struct HitState<W> {
@@ -60,7 +76,59 @@ impl<W: Write + Send> HitSink<W> {
                 buf: Vec::new(),
                 first: true,
             }),
+            npy: Box::default(),
         })
+    }
+
+    /// Writes the queued NPY tiles: waits for the writer when `wait`, else leaves them
+    /// to the worker writing now. Whoever writes looks at the queue again once it has
+    /// let the writer go, so no tile queued meanwhile is left behind.
+    fn drain_records(&self, wait: bool) -> Result<(), SinkClosed> {
+        let mut batch = Vec::new();
+        loop {
+            let mut guard = if wait {
+                self.state.lock().map_err(closed)?
+            } else {
+                match self.state.try_lock() {
+                    Ok(g) => g,
+                    Err(TryLockError::WouldBlock) => return Ok(()),
+                    Err(TryLockError::Poisoned(e)) => return Err(closed(e)),
+                }
+            };
+            let HitState { out, records, .. } = &mut *guard;
+            loop {
+                std::mem::swap(&mut batch, &mut *self.npy.queue.lock().map_err(closed)?);
+                if batch.is_empty() {
+                    break;
+                }
+                for tile in batch.drain(..) {
+                    records
+                        .push_reclaiming(
+                            tile,
+                            |_, _, segments| {
+                                for seg in segments {
+                                    for piece in seg.chunks(PIECE_BYTES / NPY_RECORD_BYTES) {
+                                        out.write_all(piece.as_flattened())?;
+                                    }
+                                }
+                                Ok::<(), io::Error>(())
+                            },
+                            |pixels| {
+                                if let Ok(mut spare) = self.npy.spare.lock()
+                                    && spare.len() < QUEUED_TILES
+                                {
+                                    spare.push(pixels);
+                                }
+                            },
+                        )
+                        .map_err(closed)?;
+                }
+            }
+            drop(guard);
+            if self.npy.queue.lock().map_err(closed)?.is_empty() {
+                return Ok(());
+            }
+        }
     }
 
     /// Writes the closing bytes and flushes the writer, once every row is out.
@@ -69,6 +137,15 @@ impl<W: Write + Send> HitSink<W> {
             .state
             .lock()
             .map_err(|_| io::Error::other("a worker panicked while writing"))?;
+        if self.format == HitFormat::Npy {
+            drop(s);
+            self.drain_records(true)
+                .map_err(|e| io::Error::other(e.0))?;
+            s = self
+                .state
+                .lock()
+                .map_err(|_| io::Error::other("a worker panicked while writing"))?;
+        }
         let complete = match self.format {
             HitFormat::Json | HitFormat::Csv => s.rows.is_complete(),
             HitFormat::Npy => s.records.is_complete(),
@@ -145,33 +222,29 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<W> {
                 .map_err(closed)
             }
             HitFormat::Npy => {
-                // Encode outside the lock, so workers only queue for the copy and write.
+                // Encode outside the lock, into a buffer a written tile left behind.
                 let r = tile.rect;
-                let records = tile
-                    .pixels
-                    .iter()
-                    .enumerate()
-                    .map(|(k, s)| {
-                        npy_record_bytes(r.x + k as u32 % r.width, r.y + k as u32 / r.width, s)
-                    })
-                    .collect();
-                let encoded = Tile {
-                    rect: r,
-                    pixels: records,
-                    rays: tile.rays,
+                let mut records = self
+                    .npy
+                    .spare
+                    .lock()
+                    .map_err(closed)?
+                    .pop()
+                    .unwrap_or_default();
+                records.clear();
+                records.extend(tile.pixels.iter().enumerate().map(|(k, s)| {
+                    npy_record_bytes(r.x + k as u32 % r.width, r.y + k as u32 / r.width, s)
+                }));
+                let queued = {
+                    let mut queue = self.npy.queue.lock().map_err(closed)?;
+                    queue.push(Tile {
+                        rect: r,
+                        pixels: records,
+                        rays: tile.rays,
+                    });
+                    queue.len()
                 };
-                let mut guard = self.state.lock().map_err(closed)?;
-                let HitState { out, records, .. } = &mut *guard;
-                records
-                    .push(encoded, |_, _, segments| {
-                        for seg in segments {
-                            for piece in seg.chunks(PIECE_BYTES / NPY_RECORD_BYTES) {
-                                out.write_all(piece.as_flattened())?;
-                            }
-                        }
-                        Ok::<(), io::Error>(())
-                    })
-                    .map_err(closed)
+                self.drain_records(queued > QUEUED_TILES)
             }
         }
     }
@@ -184,6 +257,7 @@ mod tests {
     use crate::geometry::Face;
     use crate::scene::Limits;
     use glam::DVec3;
+    use std::sync::atomic::Ordering;
 
     /// A made-up first hit for every pixel: misses, hits with and without a face.
     fn surface(u: u32, v: u32) -> Option<Surface> {
@@ -196,6 +270,53 @@ mod tests {
             front: true,
             face: u.is_multiple_of(2).then_some(Face::PosY),
         })
+    }
+
+    #[test]
+    fn npy_tiles_from_many_threads_give_the_bytes_of_one() {
+        let scene = Arc::new(
+            crate::scene::parse(include_bytes!("../../scenes/lecture.json"), &Limits::NONE)
+                .unwrap(),
+        );
+        let region = Rect {
+            x: 0,
+            y: 0,
+            width: 40,
+            height: 30,
+        };
+        let write = |threads: usize| {
+            let sink = HitSink::new(scene.clone(), HitFormat::Npy, Vec::new(), region).unwrap();
+            let mut tiles = sink.tile_shape(region, 3).cut(region);
+            tiles.reverse();
+            let next = std::sync::atomic::AtomicUsize::new(0);
+            std::thread::scope(|s| {
+                for _ in 0..threads {
+                    s.spawn(|| {
+                        while let Some(&t) = tiles.get(next.fetch_add(1, Ordering::Relaxed)) {
+                            let pixels = (t.y..t.y + t.height)
+                                .flat_map(|v| (t.x..t.x + t.width).map(move |u| surface(u, v)))
+                                .collect();
+                            sink.tile(Tile {
+                                rect: t,
+                                pixels,
+                                rays: 0,
+                            })
+                            .unwrap();
+                        }
+                    });
+                }
+            });
+            sink.finish().unwrap();
+            sink.into_writer().unwrap()
+        };
+        let one = write(1);
+        assert_eq!(
+            one.len(),
+            npy_header(30, 40).len() + 40 * 30 * NPY_RECORD_BYTES
+        );
+        for threads in [2, 4, 8] {
+            assert!(write(threads) == one, "{threads} threads");
+        }
     }
 
     #[test]

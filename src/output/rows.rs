@@ -42,6 +42,10 @@ pub const LANES_PER_THREAD: usize = 1;
 /// How far (in tiles) a render may run ahead of its oldest tile being traced, per lane.
 pub const WINDOW_PER_LANE: usize = 4;
 
+/// The most encoded tiles a sink queues for the worker writing now before the next
+/// worker waits for it, and the most spent buffers it keeps for reuse.
+pub const QUEUED_TILES: usize = 4;
+
 /// The largest piece of encoded records a sink builds before it writes it.
 pub const PIECE_BYTES: usize = 16 * 1024;
 
@@ -102,7 +106,19 @@ impl<T> RowAssembler<T> {
     pub fn push<E>(
         &mut self,
         tile: Tile<T>,
+        emit: impl FnMut(u32, u32, &[&[T]]) -> Result<(), E>,
+    ) -> Result<(), E> {
+        self.push_reclaiming(tile, emit, drop)
+    }
+
+    /// As [`RowAssembler::push`], and hands every tile's pixel buffer to `spent` once
+    /// its rows have left, so a sink can reuse it for a later tile instead of
+    /// allocating (and page-faulting) a fresh one.
+    pub fn push_reclaiming<E>(
+        &mut self,
+        tile: Tile<T>,
         mut emit: impl FnMut(u32, u32, &[&[T]]) -> Result<(), E>,
+        mut spent: impl FnMut(Vec<T>),
     ) -> Result<(), E> {
         let r = tile.rect;
         self.held += r.pixels();
@@ -127,6 +143,7 @@ impl<T> RowAssembler<T> {
                     band.next_x += t.rect.width;
                     self.held -= t.rect.pixels();
                     emit(y, t.rect.x, &[&t.pixels])?;
+                    spent(t.pixels);
                 }
                 if band.next_x < right {
                     return Ok(());
@@ -147,7 +164,9 @@ impl<T> RowAssembler<T> {
                 self.held -= band.filled;
             }
             let height = band.height;
-            self.bands.remove(&y);
+            if let Some(band) = self.bands.remove(&y) {
+                band.tiles.into_values().for_each(|t| spent(t.pixels));
+            }
             self.next_y = y + height;
         }
     }
@@ -189,6 +208,30 @@ mod tests {
         assert!(a.is_complete());
         assert_eq!(a.held_pixels(), 0);
         rows
+    }
+
+    #[test]
+    fn every_tile_buffer_comes_back_once_its_rows_have_left() {
+        let region = Rect {
+            x: 0,
+            y: 0,
+            width: 6,
+            height: 4,
+        };
+        for shape in [TileShape::square(2), TileShape::rows(region, 2)] {
+            let mut tiles = shape.cut(region);
+            tiles.reverse();
+            let mut a = RowAssembler::<(u32, u32)>::new(region);
+            let mut back = Vec::new();
+            for t in tiles.iter().copied() {
+                a.push_reclaiming::<()>(tile(t), |_, _, _| Ok(()), |p| back.push(p[0]))
+                    .unwrap();
+            }
+            back.sort();
+            let mut corners: Vec<(u32, u32)> = tiles.iter().map(|t| (t.x, t.y)).collect();
+            corners.sort();
+            assert_eq!(back, corners, "{shape:?}");
+        }
     }
 
     #[test]
