@@ -1,6 +1,9 @@
 //! The integration tests, one binary. Modules:
 //! - `support`: helpers (the built binary, scene files, temporary outputs);
 //! - `support_server`: a `TestApp` (the real router on a loopback port), scene makers;
+//! - `auth`: `raytile token create` and `serve --require-token`: bearer tokens and
+//!   roles on SQLite and PostgreSQL (PostgreSQL's run is ignored unless asked for:
+//!   `bash .ci/test-all` starts one);
 //! - `cli`: `raytile render | hits | validate` as a user runs them;
 //! - `cost`: the ray budget, its refusals and its cut renders;
 //! - `diagnose`: naming the mistake behind a failing submission, each mistake made by
@@ -32,6 +35,7 @@
 mod support;
 mod support_server;
 
+mod auth;
 mod cli;
 mod cluster;
 mod cost;
