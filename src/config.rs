@@ -175,6 +175,13 @@ pub struct StoreArgs {
 /// The data folder unless told otherwise.
 pub const DEFAULT_DATA_DIR: &str = "./raytile-data";
 
+impl StoreArgs {
+    /// Opens the database these settings name (creating and migrating it on first use).
+    pub async fn open(&self) -> Result<crate::store::Store, crate::store::StoreError> {
+        crate::store::Store::open(self.database.as_ref(), &self.data_dir).await
+    }
+}
+
 impl Default for StoreArgs {
     fn default() -> Self {
         StoreArgs {

@@ -8,7 +8,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 
 use crate::config::StoreArgs;
-use crate::store::{Role, Store};
+use crate::store::Role;
 
 /// `raytile token …`.
 #[derive(Debug, clap::Args)]
@@ -70,9 +70,7 @@ async fn create(a: CreateArgs) -> anyhow::Result<ExitCode> {
     if role == Role::Instructor && a.assignment.is_some() {
         anyhow::bail!("--assignment scopes grader tokens; an instructor's has every assignment");
     }
-    let store = Store::open(&a.store)
-        .await
-        .context("cannot open the database")?;
+    let store = a.store.open().await.context("cannot open the database")?;
     let created = store.create_token(role, a.assignment.as_deref()).await?;
     store.close().await;
     // The token alone on standard output, so that `$(raytile token create …)` takes it;
@@ -85,9 +83,7 @@ async fn create(a: CreateArgs) -> anyhow::Result<ExitCode> {
 }
 
 async fn revoke(a: RevokeArgs) -> anyhow::Result<ExitCode> {
-    let store = Store::open(&a.store)
-        .await
-        .context("cannot open the database")?;
+    let store = a.store.open().await.context("cannot open the database")?;
     let revoked = store.revoke_token(&a.id).await?;
     store.close().await;
     if revoked {

@@ -164,7 +164,9 @@ pub async fn serve(config: ServeArgs) -> anyhow::Result<()> {
     let addr = listener.local_addr()?;
     let store = if config.require_token {
         Some(
-            Store::open(&config.store)
+            config
+                .store
+                .open()
                 .await
                 .context("cannot open the token store")?,
         )

@@ -16,8 +16,6 @@ use sqlx::AnyPool;
 use sqlx::any::AnyPoolOptions;
 use sqlx::migrate::{Migration, MigrationType, Migrator};
 
-use crate::config::StoreArgs;
-
 pub use tokens::{CreatedToken, Principal, Role, Secret};
 
 /// The embedded SQLite database's file name inside the data folder.
@@ -81,11 +79,12 @@ pub struct Store {
 }
 
 impl Store {
-    /// Opens the store the settings name: `--database`, else SQLite in `--data-dir`.
-    pub async fn open(args: &StoreArgs) -> Result<Store, StoreError> {
-        match &args.database {
+    /// Opens the store `database` names, else (with `None`) SQLite in `data_dir`: what
+    /// `--database` and `--data-dir` say (`config::StoreArgs::open`).
+    pub async fn open(database: Option<&Secret>, data_dir: &Path) -> Result<Store, StoreError> {
+        match database {
             Some(url) => Store::connect(url.expose()).await,
-            None => Store::open_dir(&args.data_dir).await,
+            None => Store::open_dir(data_dir).await,
         }
     }
 
