@@ -6,6 +6,7 @@
 //! the binary and applied at open) and one set of queries, written in the SQL both
 //! speak (`$1` placeholders, which SQLite reads as numbered parameters too).
 
+pub mod assignments;
 pub mod tokens;
 
 use std::borrow::Cow;
