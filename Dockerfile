@@ -40,7 +40,8 @@ RUN mkdir -p src \
 # The real sources. .dockerignore keeps target/, .git and deployment files out, so
 # only changes that can affect the binary invalidate this layer.
 COPY . .
-RUN cargo build --release --locked
+RUN cargo build --release --locked \
+ && mkdir -p /data
 
 # ---- runtime ----------------------------------------------------------------
 # distroless cc: glibc, libgcc_s, CA certificates and nothing else (no shell, no
@@ -51,6 +52,9 @@ COPY --from=build /src/target/release/raytile /usr/local/bin/raytile
 # The example scenes are compiled into the binary; the files ride along so that
 # `raytile render scenes/showcase.json` works inside the container too.
 COPY --from=build /src/scenes /srv/raytile/scenes
+# The data folder (the embedded SQLite database of tokens, assignments and submissions),
+# owned by the nonroot user so that a fresh volume mounted here is writable.
+COPY --from=build --chown=65532:65532 /data /data
 WORKDIR /srv/raytile
 
 # Numeric, so that Kubernetes' runAsNonRoot can check it without /etc/passwd.
@@ -59,8 +63,11 @@ USER 65532:65532
 # Defaults an operator usually changes through the environment. The concurrency
 # knobs (RAYTILE_MAX_RENDERS, RAYTILE_THREADS) default to the cores the container
 # may use, so they are left unset here.
+# A course deployment also sets RAYTILE_REQUIRE_TOKEN=true (docs/deploy.md).
 ENV RAYTILE_ADDR=0.0.0.0:8080 \
+    RAYTILE_DATA_DIR=/data \
     RUST_LOG=info
+VOLUME ["/data"]
 EXPOSE 8080
 
 # Exec form: there is no shell in this image. The binary probes GET /healthz itself.

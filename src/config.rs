@@ -141,6 +141,54 @@ pub struct ServeArgs {
     /// Largest frame, in pixels, whose failing submissions are diagnosed (0: never).
     #[arg(long, env = "RAYTILE_DIAGNOSIS_MAX_PIXELS", default_value_t = crate::grade::diagnose::DEFAULT_MAX_PIXELS)]
     pub diagnosis_max_pixels: u64,
+
+    /// Require an instructor's bearer token on the routes that take a posted scene
+    /// (`/v1/render`, `/v1/hits`, `/v1/trace`, `/v1/validate`, `/v1/grade`): what a
+    /// course deployment must set, or anyone can render the answer key.
+    #[arg(long, env = "RAYTILE_REQUIRE_TOKEN")]
+    pub require_token: bool,
+
+    /// An instructor token accepted besides those in the database, to bootstrap a
+    /// deployment. Set it in the environment, not on the command line, where `ps` shows it.
+    #[arg(long, env = "RAYTILE_ADMIN_TOKEN", hide_env_values = true)]
+    pub admin_token: Option<crate::store::Secret>,
+
+    /// Where tokens, assignments and submissions are kept.
+    #[command(flatten)]
+    pub store: StoreArgs,
+}
+
+/// Where the database is: embedded SQLite in `--data-dir` unless `--database` names a
+/// PostgreSQL server (shared by every replica).
+#[derive(Debug, Clone, clap::Args)]
+pub struct StoreArgs {
+    /// The data folder; the embedded SQLite database (`raytile.db`) is created there on
+    /// first use.
+    #[arg(long, env = "RAYTILE_DATA_DIR", default_value = DEFAULT_DATA_DIR)]
+    pub data_dir: std::path::PathBuf,
+
+    /// A PostgreSQL URL (`postgres://user:password@host/db`); instead of `--data-dir`.
+    #[arg(long, env = "RAYTILE_DATABASE_URL", hide_env_values = true)]
+    pub database: Option<crate::store::Secret>,
+}
+
+/// The data folder unless told otherwise.
+pub const DEFAULT_DATA_DIR: &str = "./raytile-data";
+
+impl StoreArgs {
+    /// Opens the database these settings name (creating and migrating it on first use).
+    pub async fn open(&self) -> Result<crate::store::Store, crate::store::StoreError> {
+        crate::store::Store::open(self.database.as_ref(), &self.data_dir).await
+    }
+}
+
+impl Default for StoreArgs {
+    fn default() -> Self {
+        StoreArgs {
+            data_dir: DEFAULT_DATA_DIR.into(),
+            database: None,
+        }
+    }
 }
 
 impl Default for ServeArgs {
@@ -171,6 +219,9 @@ impl Default for ServeArgs {
             tile: DEFAULT_TILE_PX,
             log_format: "text".into(),
             diagnosis_max_pixels: crate::grade::diagnose::DEFAULT_MAX_PIXELS,
+            require_token: false,
+            admin_token: None,
+            store: StoreArgs::default(),
         }
     }
 }

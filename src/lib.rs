@@ -27,3 +27,5 @@ pub mod render;
 pub mod scene;
 /// The HTTP service on axum and tokio.
 pub mod server;
+/// The database: tokens, assignments, submissions (SQLite or PostgreSQL).
+pub mod store;

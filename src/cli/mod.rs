@@ -9,6 +9,7 @@ mod grade;
 mod input;
 mod local;
 mod serve;
+mod token;
 
 use std::path::PathBuf;
 
@@ -45,6 +46,8 @@ pub enum Command {
     Serve(crate::config::ServeArgs),
     /// Probe a running server's `/healthz`: exit 0 when it answers 200, 1 otherwise.
     Healthcheck(serve::HealthcheckArgs),
+    /// Create or revoke the bearer tokens that `--require-token` asks for.
+    Token(token::TokenArgs),
 }
 
 /// Options shared by the commands that trace.
@@ -84,6 +87,7 @@ pub fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
         Some(Command::GradeAssignment(a)) => assignment::grade_assignment(a),
         Some(Command::Serve(a)) => serve::serve(a),
         Some(Command::Healthcheck(a)) => serve::healthcheck(a),
+        Some(Command::Token(a)) => token::token(a),
         // No command: serve, configured by the environment alone.
         None => serve::serve(crate::config::ServeArgs::from_env().map_err(|e| e.exit())?),
     }

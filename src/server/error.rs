@@ -52,6 +52,12 @@ pub enum ApiError {
     /// A query parameter or header is malformed (400).
     #[error("{0}")]
     BadRequest(String),
+    /// No bearer token, or one that is unknown or revoked (401 + `WWW-Authenticate`).
+    #[error("{0}")]
+    Unauthorized(String),
+    /// A valid token whose role may not do this (403).
+    #[error("{0}")]
+    Forbidden(String),
     /// No such resource (404).
     #[error("{0}")]
     NotFound(String),
@@ -216,6 +222,8 @@ impl ApiError {
     pub fn status(&self) -> StatusCode {
         match self {
             ApiError::InvalidJson { .. } | ApiError::BadRequest(_) => StatusCode::BAD_REQUEST,
+            ApiError::Unauthorized(_) => StatusCode::UNAUTHORIZED,
+            ApiError::Forbidden(_) => StatusCode::FORBIDDEN,
             ApiError::NotFound(_) => StatusCode::NOT_FOUND,
             ApiError::MethodNotAllowed => StatusCode::METHOD_NOT_ALLOWED,
             ApiError::NotAcceptable { .. } => StatusCode::NOT_ACCEPTABLE,
@@ -243,6 +251,8 @@ impl ApiError {
         match self {
             ApiError::InvalidJson { .. } => ("invalid-json", "Invalid JSON"),
             ApiError::BadRequest(_) => ("bad-request", "Bad request"),
+            ApiError::Unauthorized(_) => ("unauthorized", "Unauthorized"),
+            ApiError::Forbidden(_) => ("forbidden", "Forbidden"),
             ApiError::NotFound(_) => ("not-found", "Not found"),
             ApiError::MethodNotAllowed => ("method-not-allowed", "Method not allowed"),
             ApiError::NotAcceptable { .. } => ("not-acceptable", "Not acceptable"),
@@ -363,6 +373,9 @@ impl IntoResponse for ApiError {
         let mut res = (status, body).into_response();
         let h = res.headers_mut();
         h.insert(header::CONTENT_TYPE, HeaderValue::from_static(PROBLEM_JSON));
+        if matches!(self, ApiError::Unauthorized(_)) {
+            h.insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
+        }
         if refused {
             h.insert(header::RETRY_AFTER, HeaderValue::from(RETRY_AFTER_SECONDS));
         }
@@ -415,6 +428,8 @@ mod tests {
                 column: 2,
             },
             ApiError::BadRequest("x".into()),
+            ApiError::Unauthorized("x".into()),
+            ApiError::Forbidden("x".into()),
             ApiError::NotFound("x".into()),
             ApiError::MethodNotAllowed,
             ApiError::NotAcceptable {

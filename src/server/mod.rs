@@ -14,9 +14,10 @@
 //!   (CPU work that answers in one piece, admitted like a render),
 //!   [`error`] (every failure → `application/problem+json`, in one place),
 //!   [`observe`] (request ids, log lines, request counts), [`shutdown`] (the phases of
-//!   a graceful stop).
+//!   a graceful stop), [`auth`] (bearer tokens under `--require-token`).
 
 pub mod admission;
+pub mod auth;
 pub mod connection;
 pub mod error;
 pub mod extract;
@@ -47,6 +48,7 @@ use tower_http::catch_panic::CatchPanicLayer;
 
 use crate::config::ServeArgs;
 use crate::render::Scheduler;
+use crate::store::Store;
 use admission::Admission;
 use memory::MemoryBudget;
 use metrics::Metrics;
@@ -75,6 +77,8 @@ pub struct Shared {
     pub metrics: Metrics,
     /// Running, draining or stopping.
     pub shutdown: Shutdown,
+    /// The token store, opened when `--require-token` is set.
+    pub auth: Option<auth::Auth>,
 }
 
 impl Deref for AppState {
@@ -85,9 +89,19 @@ impl Deref for AppState {
 }
 
 impl AppState {
-    /// Starts the rayon pool and sets up admission and metrics for `config`.
+    /// Starts the rayon pool and sets up admission and metrics for `config`, without a
+    /// token store (so not with `--require-token`: see [`AppState::with_store`]).
     pub fn new(config: ServeArgs) -> anyhow::Result<AppState> {
+        AppState::with_store(config, None)
+    }
+
+    /// [`AppState::new`] with the store that `--require-token` checks tokens against.
+    pub fn with_store(config: ServeArgs, store: Option<Store>) -> anyhow::Result<AppState> {
         config.check().map_err(anyhow::Error::msg)?;
+        if config.require_token && store.is_none() {
+            anyhow::bail!("--require-token needs the token store");
+        }
+        let auth = store.map(|s| auth::Auth::new(s, config.admin_token.as_ref()));
         let slots = config.max_renders();
         let metrics = Metrics::new(slots, config.queue).context("cannot register the metrics")?;
         let pool = rayon::ThreadPoolBuilder::new()
@@ -105,6 +119,7 @@ impl AppState {
             pool: Scheduler::new(pool),
             metrics,
             shutdown: Shutdown::default(),
+            auth,
         })))
     }
 }
@@ -112,11 +127,22 @@ impl AppState {
 /// The whole service as a router: every route, the 404 and 405 fallbacks, and the
 /// layers (panics to 500, request ids, logs and counts).
 pub fn app(state: AppState) -> Router {
-    Router::new()
+    // The routes that take a posted scene: whoever may call them can render a reference.
+    let scene_routes = Router::new()
         .merge(render::router())
         .merge(trace::router())
         .merge(grade::router())
-        .merge(validate::router())
+        .merge(validate::router());
+    let scene_routes = if state.config.require_token {
+        scene_routes.route_layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            auth::require_instructor,
+        ))
+    } else {
+        scene_routes
+    };
+    Router::new()
+        .merge(scene_routes)
         .merge(scenes::router())
         .merge(health::router())
         .merge(metrics::router())
@@ -138,13 +164,25 @@ pub async fn serve(config: ServeArgs) -> anyhow::Result<()> {
         .await
         .with_context(|| format!("cannot listen on {}", config.addr))?;
     let addr = listener.local_addr()?;
-    let state = AppState::new(config)?;
+    let store = if config.require_token {
+        Some(
+            config
+                .store
+                .open()
+                .await
+                .context("cannot open the token store")?,
+        )
+    } else {
+        None
+    };
+    let state = AppState::with_store(config, store)?;
     tracing::info!(
         %addr,
         max_renders = state.config.max_renders(),
         queue = state.config.queue,
         memory_bytes = state.config.memory_bytes,
         threads = state.pool.current_num_threads(),
+        require_token = state.config.require_token,
         "listening on http://{addr}"
     );
     run(listener, state, shutdown_signal()).await

@@ -3,6 +3,9 @@
 //! - `support_server`: a `TestApp` (the real router on a loopback port), scene makers;
 //! - `assignment`: `raytile grade-assignment`, a whole assignment graded offline, hidden
 //!   scenes' feedback redacted;
+//! - `auth`: `raytile token create` and `serve --require-token`: bearer tokens and
+//!   roles on SQLite and PostgreSQL (PostgreSQL's run is ignored unless asked for:
+//!   `bash .ci/test-all` starts one);
 //! - `cli`: `raytile render | hits | validate` as a user runs them;
 //! - `cost`: the ray budget, its refusals and its cut renders;
 //! - `diagnose`: naming the mistake behind a failing submission, each mistake made by
@@ -33,10 +36,11 @@
 //!   `bash .ci/test-all` installs chromium and the page's npm packages and runs it);
 //! - `validation`: every class of bad document, with its pointer.
 
-mod assignment;
 mod support;
 mod support_server;
 
+mod assignment;
+mod auth;
 mod cli;
 mod cluster;
 mod cost;

@@ -67,7 +67,7 @@ fn validator(doc: &Value, schema: &Value) -> Validator {
 
 /// One answer of the server, as the checks need it.
 pub(crate) struct Answer {
-    status: u16,
+    pub(crate) status: u16,
     headers: HeaderMap,
     pub(crate) body: Vec<u8>,
 }

@@ -175,9 +175,22 @@ pub fn spawn_binary(
     String,
     std::sync::mpsc::Receiver<String>,
 ) {
+    spawn_binary_env(args, &[])
+}
+
+/// [`spawn_binary`] with these environment variables set too.
+pub fn spawn_binary_env(
+    args: &[&str],
+    env: &[(&str, &str)],
+) -> (
+    std::process::Child,
+    String,
+    std::sync::mpsc::Receiver<String>,
+) {
     let mut child = crate::support::raytile()
         .args(["serve", "--addr", "127.0.0.1:0"])
         .args(args)
+        .envs(env.iter().copied())
         .env("RUST_LOG", "info")
         .env("RAYTILE_LOG_FORMAT", "text")
         .stdout(Stdio::piped())

@@ -1,0 +1,340 @@
+//! Assignment documents, kept by revision, and the submissions graded against them.
+//! Documents and results are stored as the JSON text they were validated or produced
+//! as; this module neither parses nor grades them.
+
+use sqlx::Row;
+
+use super::{Store, StoreError, now_ms, random_bytes};
+
+/// The stored revision of an assignment.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredAssignment {
+    /// 1 for the first document, one more for each replacement.
+    pub revision: i64,
+    /// The document (JSON).
+    pub document: String,
+}
+
+/// Why an assignment could not be put.
+#[derive(Debug, thiserror::Error)]
+pub enum PutError {
+    /// The caller expected another revision than the stored one (409).
+    #[error("the assignment is at revision {current}, not {expected}")]
+    Conflict {
+        /// What the caller said it replaces.
+        expected: i64,
+        /// What is stored (0: nothing).
+        current: i64,
+    },
+    /// The database failed.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+}
+
+/// A submission to record.
+#[derive(Debug, Clone)]
+pub struct NewSubmission<'a> {
+    /// The assignment.
+    pub assignment: &'a str,
+    /// The revision it was graded against.
+    pub revision: i64,
+    /// The student's opaque id.
+    pub student: &'a str,
+    /// The client's `Idempotency-Key`, if it sent one.
+    pub idempotency_key: Option<&'a str>,
+    /// The graded result (JSON).
+    pub result: &'a str,
+    /// The score.
+    pub score: f64,
+}
+
+/// A recorded submission.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Submission {
+    /// Its id.
+    pub id: String,
+    /// The revision it was graded against.
+    pub revision: i64,
+    /// The student.
+    pub student: String,
+    /// When it was recorded (ms since the epoch).
+    pub submitted_ms: i64,
+    /// The graded result (JSON).
+    pub result: String,
+    /// The score.
+    pub score: f64,
+}
+
+impl Store {
+    /// The live revision of assignment `id` (0: none, or deleted).
+    async fn current_revision(&self, id: &str) -> Result<i64, StoreError> {
+        let row = sqlx::query(
+            "SELECT revision, deleted_ms FROM assignments WHERE id = $1 \
+             ORDER BY revision DESC LIMIT 1",
+        )
+        .bind(id)
+        .fetch_optional(self.pool())
+        .await?;
+        Ok(match row {
+            Some(r) if r.try_get::<Option<i64>, _>("deleted_ms")?.is_none() => {
+                r.try_get("revision")?
+            }
+            _ => 0,
+        })
+    }
+
+    /// Stores `document` as the next revision of `id` and returns that revision. With
+    /// `expected`, only if the live revision is that one (0: none yet), else a conflict.
+    pub async fn put_assignment(
+        &self,
+        id: &str,
+        document: &str,
+        expected: Option<i64>,
+    ) -> Result<i64, PutError> {
+        let current = self.current_revision(id).await?;
+        if let Some(expected) = expected
+            && expected != current
+        {
+            return Err(PutError::Conflict { expected, current });
+        }
+        // Revisions keep counting past a deletion, so that no two documents share one.
+        let last: (Option<i64>,) =
+            sqlx::query_as("SELECT MAX(revision) FROM assignments WHERE id = $1")
+                .bind(id)
+                .fetch_one(self.pool())
+                .await
+                .map_err(StoreError::from)?;
+        let revision = last.0.unwrap_or(0) + 1;
+        let inserted = sqlx::query(
+            "INSERT INTO assignments (id, revision, document, created_ms) VALUES ($1, $2, $3, $4)",
+        )
+        .bind(id)
+        .bind(revision)
+        .bind(document)
+        .bind(now_ms())
+        .execute(self.pool())
+        .await;
+        match inserted {
+            Ok(_) => Ok(revision),
+            // Another writer took this revision first (the primary key decides).
+            Err(sqlx::Error::Database(e)) if e.is_unique_violation() => Err(PutError::Conflict {
+                expected: expected.unwrap_or(current),
+                current: self.current_revision(id).await?,
+            }),
+            Err(e) => Err(StoreError::from(e).into()),
+        }
+    }
+
+    /// The live revision of assignment `id`, or `None` if there is none (or it was deleted).
+    pub async fn assignment(&self, id: &str) -> Result<Option<StoredAssignment>, StoreError> {
+        let row = sqlx::query(
+            "SELECT revision, document, deleted_ms FROM assignments WHERE id = $1 \
+             ORDER BY revision DESC LIMIT 1",
+        )
+        .bind(id)
+        .fetch_optional(self.pool())
+        .await?;
+        let Some(row) = row else { return Ok(None) };
+        if row.try_get::<Option<i64>, _>("deleted_ms")?.is_some() {
+            return Ok(None);
+        }
+        Ok(Some(StoredAssignment {
+            revision: row.try_get("revision")?,
+            document: row.try_get("document")?,
+        }))
+    }
+
+    /// Deletes assignment `id` (its submissions stay); whether it existed.
+    pub async fn delete_assignment(&self, id: &str) -> Result<bool, StoreError> {
+        let done = sqlx::query(
+            "UPDATE assignments SET deleted_ms = $1 WHERE id = $2 AND deleted_ms IS NULL",
+        )
+        .bind(now_ms())
+        .bind(id)
+        .execute(self.pool())
+        .await?;
+        Ok(done.rows_affected() > 0)
+    }
+
+    /// Records a submission, committed when this returns. A second one with the same
+    /// idempotency key for the same assignment is not recorded: the first is returned,
+    /// with `false`.
+    pub async fn record_submission(
+        &self,
+        s: &NewSubmission<'_>,
+    ) -> Result<(Submission, bool), StoreError> {
+        if let Some(key) = s.idempotency_key
+            && let Some(existing) = self.submission_by_key(s.assignment, key).await?
+        {
+            return Ok((existing, false));
+        }
+        let id = hex::encode(random_bytes::<16>()?);
+        let submitted_ms = now_ms();
+        let inserted = sqlx::query(
+            "INSERT INTO submissions (id, assignment_id, revision, student, idempotency_key, \
+             submitted_ms, result, score) VALUES ($1, $2, $3, $4, $5, $6, $7, $8)",
+        )
+        .bind(&id)
+        .bind(s.assignment)
+        .bind(s.revision)
+        .bind(s.student)
+        .bind(s.idempotency_key)
+        .bind(submitted_ms)
+        .bind(s.result)
+        .bind(s.score)
+        .execute(self.pool())
+        .await;
+        match (inserted, s.idempotency_key) {
+            (Ok(_), _) => Ok((
+                Submission {
+                    id,
+                    revision: s.revision,
+                    student: s.student.to_owned(),
+                    submitted_ms,
+                    result: s.result.to_owned(),
+                    score: s.score,
+                },
+                true,
+            )),
+            // A concurrent retry with the same key committed first: return its row.
+            (Err(sqlx::Error::Database(e)), Some(key)) if e.is_unique_violation() => {
+                let existing = self.submission_by_key(s.assignment, key).await?;
+                existing
+                    .map(|e| (e, false))
+                    .ok_or_else(|| StoreError::Corrupt("a conflicting key without its row".into()))
+            }
+            (Err(e), _) => Err(e.into()),
+        }
+    }
+
+    async fn submission_by_key(
+        &self,
+        assignment: &str,
+        key: &str,
+    ) -> Result<Option<Submission>, StoreError> {
+        let row = sqlx::query(
+            "SELECT id, revision, student, submitted_ms, result, score FROM submissions \
+             WHERE assignment_id = $1 AND idempotency_key = $2",
+        )
+        .bind(assignment)
+        .bind(key)
+        .fetch_optional(self.pool())
+        .await?;
+        row.map(|r| submission(&r)).transpose()
+    }
+
+    /// The submissions of an assignment, oldest first; only `student`'s with one.
+    pub async fn submissions(
+        &self,
+        assignment: &str,
+        student: Option<&str>,
+    ) -> Result<Vec<Submission>, StoreError> {
+        let rows = sqlx::query(
+            "SELECT id, revision, student, submitted_ms, result, score FROM submissions \
+             WHERE assignment_id = $1 AND ($2 IS NULL OR student = $2) \
+             ORDER BY submitted_ms, id",
+        )
+        .bind(assignment)
+        .bind(student)
+        .fetch_all(self.pool())
+        .await?;
+        rows.iter().map(submission).collect()
+    }
+}
+
+fn submission(r: &sqlx::any::AnyRow) -> Result<Submission, StoreError> {
+    Ok(Submission {
+        id: r.try_get("id")?,
+        revision: r.try_get("revision")?,
+        student: r.try_get("student")?,
+        submitted_ms: r.try_get("submitted_ms")?,
+        result: r.try_get("result")?,
+        score: r.try_get("score")?,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Revisions, conflicts, deletion and idempotent submissions, on any backend.
+    async fn round_trip(store: &Store) {
+        // A fresh id per run: the PostgreSQL database outlives a test run.
+        let id = format!("a-{}", hex::encode(random_bytes::<6>().unwrap()));
+        assert_eq!(store.assignment(&id).await.unwrap(), None);
+        assert_eq!(
+            store
+                .put_assignment(&id, "{\"v\":1}", Some(0))
+                .await
+                .unwrap(),
+            1
+        );
+        assert_eq!(
+            store.put_assignment(&id, "{\"v\":2}", None).await.unwrap(),
+            2
+        );
+        let e = store.put_assignment(&id, "{}", Some(1)).await.unwrap_err();
+        assert!(
+            matches!(
+                e,
+                PutError::Conflict {
+                    expected: 1,
+                    current: 2
+                }
+            ),
+            "{e}"
+        );
+        let a = store.assignment(&id).await.unwrap().unwrap();
+        assert_eq!((a.revision, a.document.as_str()), (2, "{\"v\":2}"));
+
+        let new = |student, key| NewSubmission {
+            assignment: &id,
+            revision: 2,
+            student,
+            idempotency_key: key,
+            result: "{\"score\":7.5}",
+            score: 7.5,
+        };
+        let (first, fresh) = store
+            .record_submission(&new("s1", Some("k1")))
+            .await
+            .unwrap();
+        assert!(fresh);
+        let (again, fresh) = store
+            .record_submission(&new("s1", Some("k1")))
+            .await
+            .unwrap();
+        assert!(!fresh);
+        assert_eq!(again, first);
+        store.record_submission(&new("s1", None)).await.unwrap();
+        store.record_submission(&new("s1", None)).await.unwrap();
+        store
+            .record_submission(&new("s2", Some("k2")))
+            .await
+            .unwrap();
+        assert_eq!(store.submissions(&id, None).await.unwrap().len(), 4);
+        let s1 = store.submissions(&id, Some("s1")).await.unwrap();
+        assert_eq!(s1.len(), 3);
+        assert!(s1.iter().all(|s| s.student == "s1" && s.score == 7.5));
+
+        assert!(store.delete_assignment(&id).await.unwrap());
+        assert!(!store.delete_assignment(&id).await.unwrap());
+        assert_eq!(store.assignment(&id).await.unwrap(), None);
+        // After a deletion the id starts again from nothing, at a revision never used.
+        assert_eq!(store.put_assignment(&id, "{}", Some(0)).await.unwrap(), 3);
+    }
+
+    #[tokio::test]
+    async fn assignments_and_submissions_round_trip_on_sqlite() {
+        let dir = tempfile::tempdir().unwrap();
+        round_trip(&Store::open_dir(dir.path()).await.unwrap()).await;
+    }
+
+    #[tokio::test]
+    #[ignore = "needs PostgreSQL: run .ci/test-all"]
+    async fn assignments_and_submissions_round_trip_on_postgres() {
+        let url = super::super::tests::postgres_url()
+            .expect("RAYTILE_TEST_DATABASE_URL names a PostgreSQL database");
+        round_trip(&Store::connect(&url).await.unwrap()).await;
+    }
+}
