@@ -1,7 +1,7 @@
 //! Axis-aligned bounding boxes and the ray-box slab test used by the BVH.
 
 use glam::{DAffine3, DVec3};
-use wide::f64x4;
+use wide::f64x2;
 
 /// An axis-aligned box; empty when `min > max` on any axis.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -147,31 +147,45 @@ impl SlabRay {
         (near <= far * (1.0 + 4.0 * f64::EPSILON)).then_some(near)
     }
 
-    /// [`SlabRay::enter`] for four boxes at once, given axis by axis (`min[axis][box]`):
-    /// lane for lane the same operations, so the same answer as four calls.
+    /// [`SlabRay::enter`] for two boxes at once, given axis by axis (`min[axis][box]`).
     #[inline(always)]
-    pub fn enter4(
+    pub fn enter2(
         &self,
-        min: &[[f64; 4]; 3],
-        max: &[[f64; 4]; 3],
+        min: &[[f64; 2]; 3],
+        max: &[[f64; 2]; 3],
         t_min: f64,
         t_max: f64,
-    ) -> [Option<f64>; 4] {
+    ) -> (Option<f64>, Option<f64>) {
+        let (near, far) = self.slabs2(min, max, t_min, t_max);
+        let up = 1.0 + 4.0 * f64::EPSILON;
+        (
+            (near[0] <= far[0] * up).then_some(near[0]),
+            (near[1] <= far[1] * up).then_some(near[1]),
+        )
+    }
+
+    /// Entry and exit `λ` of both boxes, two lanes at a time. `fast_min`/`fast_max` are
+    /// `minpd`/`maxpd` on x86-64, exactly `fmin`/`fmax` above (no NaN arises here).
+    #[inline(always)]
+    fn slabs2(
+        &self,
+        min: &[[f64; 2]; 3],
+        max: &[[f64; 2]; 3],
+        t_min: f64,
+        t_max: f64,
+    ) -> ([f64; 2], [f64; 2]) {
         let o = [self.origin.x, self.origin.y, self.origin.z];
         let inv = [self.inv_dir.x, self.inv_dir.y, self.inv_dir.z];
-        let mut near = f64x4::splat(t_min);
-        let mut far = f64x4::splat(t_max);
+        let mut near = f64x2::splat(t_min);
+        let mut far = f64x2::splat(t_max);
         for a in 0..3 {
-            let (oa, ia) = (f64x4::splat(o[a]), f64x4::splat(inv[a]));
-            let t0 = (f64x4::new(min[a]) - oa) * ia;
-            let t1 = (f64x4::new(max[a]) - oa) * ia;
+            let (oa, ia) = (f64x2::splat(o[a]), f64x2::splat(inv[a]));
+            let t0 = (f64x2::new(min[a]) - oa) * ia;
+            let t1 = (f64x2::new(max[a]) - oa) * ia;
             near = near.fast_max(t0.fast_min(t1));
             far = far.fast_min(t0.fast_max(t1));
         }
-        let up = f64x4::splat(1.0 + 4.0 * f64::EPSILON);
-        let far = (far * up).to_array();
-        let near = near.to_array();
-        std::array::from_fn(|c| (near[c] <= far[c]).then_some(near[c]))
+        (near.to_array(), far.to_array())
     }
 }
 
