@@ -448,4 +448,114 @@ mod tests {
         assert!(bvh.any(&up, 0.0, f64::INFINITY, |p| p == 3));
         assert!(!bvh.any(&up, 0.0, 1.0, |_| true));
     }
+
+    /// The surface of box `b` (closed, faces included): the first `λ` in
+    /// `(t_min, t_max]` where the ray meets it, divided exactly rather than by the slab
+    /// test's reciprocal, so it is a reference independent of the BVH's arithmetic.
+    fn box_surface(b: &Aabb, o: DVec3, d: DVec3, t_min: f64, t_max: f64) -> Option<f64> {
+        let (mut near, mut far) = (f64::NEG_INFINITY, f64::INFINITY);
+        for a in 0..3 {
+            if d[a] == 0.0 {
+                if o[a] < b.min[a] || o[a] > b.max[a] {
+                    return None;
+                }
+            } else {
+                let (t0, t1) = ((b.min[a] - o[a]) / d[a], (b.max[a] - o[a]) / d[a]);
+                near = near.max(t0.min(t1));
+                far = far.min(t0.max(t1));
+            }
+        }
+        if near > far {
+            return None;
+        }
+        [near, far].into_iter().find(|&t| t > t_min && t <= t_max)
+    }
+
+    /// The closest box surface and its index, ties to the lower index, as the world's
+    /// leaf function resolves them.
+    fn closest_of(
+        boxes: &[Aabb],
+        o: DVec3,
+        d: DVec3,
+        visit: impl FnOnce(&mut dyn FnMut(u32, f64) -> f64),
+    ) -> Option<(f64, u32)> {
+        let mut best: Option<(f64, u32)> = None;
+        visit(
+            &mut |i, limit| match box_surface(&boxes[i as usize], o, d, 1e-9, limit) {
+                Some(t) if t < limit || best.is_some_and(|(bt, bi)| t == bt && i < bi) => {
+                    best = Some((t, i));
+                    t
+                }
+                _ => limit,
+            },
+        );
+        best
+    }
+
+    /// Boxes on a half-unit grid, so that many share faces, edges and corners.
+    fn grid_box() -> impl Strategy<Value = Aabb> {
+        (
+            prop::array::uniform3(-8i32..8),
+            prop::array::uniform3(1i32..6),
+        )
+            .prop_map(|(c, e)| {
+                let min = DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * 0.5;
+                let ext = DVec3::new(e[0] as f64, e[1] as f64, e[2] as f64) * 0.5;
+                Aabb {
+                    min,
+                    max: min + ext,
+                }
+            })
+    }
+
+    /// Rays that graze: origins on grid points (so on faces, edges and corners),
+    /// directions along the axes or the grid's diagonals (so along face planes), and
+    /// some arbitrary ones.
+    fn grazing_ray() -> impl Strategy<Value = (DVec3, DVec3)> {
+        let grid = prop::array::uniform3(-12i32..12)
+            .prop_map(|c| DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * 0.5);
+        let free = prop::array::uniform3(-6.0f64..6.0).prop_map(DVec3::from);
+        let origin = prop_oneof![3 => grid, 1 => free];
+        let steps = prop::array::uniform3(-1i32..=1)
+            .prop_filter("a direction", |d| d != &[0, 0, 0])
+            .prop_map(|d| DVec3::new(d[0] as f64, d[1] as f64, d[2] as f64));
+        let any = prop::array::uniform3(-1.0f64..1.0)
+            .prop_filter("a direction", |d| d != &[0.0; 3])
+            .prop_map(DVec3::from);
+        let dir = prop_oneof![3 => steps, 1 => any];
+        (origin, dir)
+    }
+
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(256))]
+
+        #[test]
+        fn tree_finds_what_every_box_finds(
+            boxes in prop::collection::vec(grid_box(), 1..80),
+            rays in prop::collection::vec(grazing_ray(), 1..40),
+        ) {
+            let bvh = Bvh::build(&boxes);
+            for (o, d) in rays {
+                let ray = SlabRay::new(o, d);
+                let fast = closest_of(&boxes, o, d, |leaf| {
+                    bvh.closest(&ray, 1e-9, f64::INFINITY, leaf);
+                });
+                let slow = closest_of(&boxes, o, d, |leaf| {
+                    let mut limit = f64::INFINITY;
+                    for i in 0..boxes.len() as u32 {
+                        limit = leaf(i, limit);
+                    }
+                });
+                prop_assert_eq!(fast, slow, "ray {:?} + λ {:?}", o, d);
+                let t_max = slow.map_or(3.0, |(t, _)| t);
+                let blocked = |i: u32| box_surface(&boxes[i as usize], o, d, 1e-9, t_max).is_some();
+                prop_assert_eq!(
+                    bvh.any(&ray, 1e-9, t_max, blocked),
+                    (0..boxes.len() as u32).any(blocked)
+                );
+            }
+        }
+    }
 }
