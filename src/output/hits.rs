@@ -293,15 +293,7 @@ mod tests {
                 for _ in 0..threads {
                     s.spawn(|| {
                         while let Some(&t) = tiles.get(next.fetch_add(1, Ordering::Relaxed)) {
-                            let pixels = (t.y..t.y + t.height)
-                                .flat_map(|v| (t.x..t.x + t.width).map(move |u| surface(u, v)))
-                                .collect();
-                            sink.tile(Tile {
-                                rect: t,
-                                pixels,
-                                rays: 0,
-                            })
-                            .unwrap();
+                            sink.tile(Tile::filled(t, surface)).unwrap();
                         }
                     });
                 }
@@ -346,15 +338,7 @@ mod tests {
                     tiles.reverse();
                 }
                 for t in tiles {
-                    let pixels = (t.y..t.y + t.height)
-                        .flat_map(|v| (t.x..t.x + t.width).map(move |u| surface(u, v)))
-                        .collect();
-                    sink.tile(Tile {
-                        rect: t,
-                        pixels,
-                        rays: 0,
-                    })
-                    .unwrap();
+                    sink.tile(Tile::filled(t, surface)).unwrap();
                 }
                 sink.finish().unwrap();
                 sink.into_writer().unwrap()

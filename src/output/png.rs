@@ -143,15 +143,7 @@ mod tests {
         let out = Shared::default();
         let sink = PngSink::new(out.clone(), region).unwrap();
         for t in tiles.into_iter().rev() {
-            let pixels = (t.y..t.y + t.height)
-                .flat_map(|v| (t.x..t.x + t.width).map(move |u| colour(u, v)))
-                .collect();
-            sink.tile(Tile {
-                rect: t,
-                pixels,
-                rays: 0,
-            })
-            .unwrap();
+            sink.tile(Tile::filled(t, colour)).unwrap();
         }
         sink.finish().unwrap();
         out.0.lock().unwrap().clone()

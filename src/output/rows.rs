@@ -178,14 +178,7 @@ mod tests {
     use crate::render::{BAND_PIXELS, TileShape};
 
     fn tile(t: Rect) -> Tile<(u32, u32)> {
-        let pixels = (t.y..t.y + t.height)
-            .flat_map(|v| (t.x..t.x + t.width).map(move |u| (u, v)))
-            .collect();
-        Tile {
-            rect: t,
-            pixels,
-            rays: 0,
-        }
+        Tile::filled(t, |u, v| (u, v))
     }
 
     /// Pushes `tiles`, returns the rows rebuilt from the pieces and checks that pieces

@@ -86,6 +86,22 @@ pub struct Tile<T> {
     pub rays: u64,
 }
 
+#[cfg(test)]
+impl<T> Tile<T> {
+    /// A tile over `rect` whose pixel (u, v) is `f(u, v)`, as the sinks' tests feed them.
+    pub(crate) fn filled(rect: Rect, f: impl Fn(u32, u32) -> T) -> Tile<T> {
+        let pixels = (rect.y..rect.y + rect.height)
+            .flat_map(|v| (rect.x..rect.x + rect.width).map(move |u| (u, v)))
+            .map(|(u, v)| f(u, v))
+            .collect();
+        Tile {
+            rect,
+            pixels,
+            rays: 0,
+        }
+    }
+}
+
 /// What a pixel reports.
 pub trait Kernel: Sync {
     /// A pixel's value.
