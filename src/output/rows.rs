@@ -26,8 +26,8 @@
 //!   the current row and the filtered one), which the format needs.
 //!
 //! Pixel bytes: `size_of::<Option<Surface>>()` for JSON and CSV, NPY's record
-//! (`NPY_RECORD_BYTES`, 99) for NPY, 3 for a PNG; record bytes: a JSON pixel object is
-//! at most about 400 bytes, a CSV row about 250, an NPY record 99. With the defaults
+//! (`NPY_RECORD_BYTES`, 101) for NPY, 3 for a PNG; record bytes: a JSON pixel object is
+//! at most about 400 bytes, a CSV row about 250, an NPY record 101. With the defaults
 //! (`tile_px` 32, two threads: 2 lanes, a window of 8) that is, for JSON, about
 //! `(16 Ki + 10 × 1 Ki) × 88 B + 16 Ki × 400 B + 2 MiB`: under 12 MiB a response,
 //! whatever the frame's width; for a PNG, under 3 MiB plus `9 × width` bytes.
