@@ -3,7 +3,7 @@
 //! its scene ungradable and nothing more; what a hidden scene's result may show is
 //! decided in one place, [`feedback`].
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::{AssignedScene, Assignment, Visibility};
 use crate::grade::{self, GradeOptions, Hint, Report, Submission};
@@ -24,7 +24,7 @@ pub struct SubmittedFile {
 }
 
 /// How a scene fared.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Status {
     /// Every part passes.

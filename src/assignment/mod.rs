@@ -8,6 +8,7 @@
 //! The format is described in `docs/assignments.md`.
 
 pub mod grade;
+pub mod gradebook;
 pub mod report;
 mod time;
 
@@ -18,7 +19,7 @@ use serde_json::{Map, Value};
 use crate::grade::{Scoring, ScoringMode, Tolerances};
 use crate::scene::problem::Pointer;
 use crate::scene::{self, Limits, Problem, Scene, SceneError};
-pub use time::parse_rfc3339;
+pub use time::{format_rfc3339_ms, parse_rfc3339};
 
 /// The assignment document's one version.
 pub const VERSION: u64 = 1;

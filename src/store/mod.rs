@@ -7,6 +7,7 @@
 //! speak (`$1` placeholders, which SQLite reads as numbered parameters too).
 
 pub mod assignments;
+pub mod grades;
 pub mod tokens;
 
 use std::borrow::Cow;
