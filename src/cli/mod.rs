@@ -4,10 +4,12 @@
 //! one frame across several servers.
 
 mod assignment;
+mod assignment_remote;
 pub mod distributed;
 mod grade;
 mod input;
 mod local;
+pub mod remote;
 mod serve;
 mod token;
 
@@ -42,6 +44,8 @@ pub enum Command {
     Grade(grade::GradeArgs),
     /// Grade a whole assignment offline: each file of DIR for the scene its stem names.
     GradeAssignment(assignment::GradeAssignmentArgs),
+    /// Push an assignment to a course server, or download its gradebook.
+    Assignment(assignment_remote::AssignmentArgs),
     /// Serve the HTTP API (the default when no command is given).
     Serve(crate::config::ServeArgs),
     /// Probe a running server's `/healthz`: exit 0 when it answers 200, 1 otherwise.
@@ -85,6 +89,7 @@ pub fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
         Some(Command::Trace(a)) => grade::trace(a),
         Some(Command::Grade(a)) => grade::grade(a),
         Some(Command::GradeAssignment(a)) => assignment::grade_assignment(a),
+        Some(Command::Assignment(a)) => assignment_remote::assignment(a),
         Some(Command::Serve(a)) => serve::serve(a),
         Some(Command::Healthcheck(a)) => serve::healthcheck(a),
         Some(Command::Token(a)) => token::token(a),
