@@ -98,7 +98,7 @@ impl Course {
     }
 
     /// The token checks, opening the database the first time.
-    async fn auth(&self, app: &AppState) -> Result<&Auth, ApiError> {
+    pub(crate) async fn auth(&self, app: &AppState) -> Result<&Auth, ApiError> {
         self.auth
             .get_or_try_init(|| async {
                 let store = app
@@ -124,16 +124,16 @@ const HOUR_MS: i64 = 3_600_000;
 const MAX_STUDENT_LEN: usize = 256;
 const MAX_KEY_LEN: usize = 255;
 
-fn db(e: StoreError) -> ApiError {
+pub(crate) fn db(e: StoreError) -> ApiError {
     ApiError::Internal(format!("the database failed: {e}"))
 }
 
-fn not_found(id: &str) -> ApiError {
+pub(crate) fn not_found(id: &str) -> ApiError {
     ApiError::NotFound(format!("there is no assignment `{id}`"))
 }
 
 /// An id is a name that every URL and file system takes as it is.
-fn check_id(id: &str) -> Result<(), ApiError> {
+pub(crate) fn check_id(id: &str) -> Result<(), ApiError> {
     if assignment::valid_name(id) {
         Ok(())
     } else {
