@@ -53,31 +53,31 @@ async fn instructor_at(
     Ok((store, stored))
 }
 
-/// The query's `pick` (none: `None`), refusing any other parameter but `allowed`.
-fn read_query(
-    req: &Request,
-    allowed: &'static str,
-) -> Result<(Option<Pick>, Option<String>), ApiError> {
-    let (mut pick, mut other) = (None, None);
+/// The value of the query's one parameter `name` (absent: `None`); any other is 400.
+fn only_param(req: &Request, name: &str) -> Result<Option<String>, ApiError> {
+    let mut value = None;
     for (k, v) in query_pairs(req.uri())? {
-        match k.as_str() {
-            "pick" if allowed == "pick" => {
-                let p = parse_choice(
-                    "pick",
-                    &v,
-                    &[("latest", Pick::Latest), ("best", Pick::Best)],
-                )?;
-                once(&mut pick, "pick", p)?;
-            }
-            k if k == allowed && k != "pick" => once(&mut other, allowed, v)?,
-            other => {
-                return Err(ApiError::BadRequest(format!(
-                    "unknown query parameter `{other}`: this route takes `{allowed}`"
-                )));
-            }
+        if k != name {
+            return Err(ApiError::BadRequest(format!(
+                "unknown query parameter `{k}`: this route takes `{name}`"
+            )));
         }
+        once(&mut value, name, v)?;
     }
-    Ok((pick, other))
+    Ok(value)
+}
+
+/// `?pick=latest|best`, the query's only parameter (absent: `None`).
+fn pick_param(req: &Request) -> Result<Option<Pick>, ApiError> {
+    only_param(req, "pick")?
+        .map(|v| {
+            parse_choice(
+                "pick",
+                &v,
+                &[("latest", Pick::Latest), ("best", Pick::Best)],
+            )
+        })
+        .transpose()
 }
 
 fn scored(s: &Submission) -> Scored {
@@ -122,7 +122,7 @@ async fn submissions(
     Path(id): Path<String>,
     req: Request,
 ) -> Result<Response, ApiError> {
-    let (_, student) = read_query(&req, "student")?;
+    let student = only_param(&req, "student")?;
     negotiate(req.headers(), &["application/json"])?;
     let deadline = deadline_of(&req, &app);
     let (store, _) = instructor_at(&app, req.headers(), &id).await?;
@@ -148,8 +148,7 @@ async fn grades(
     Path(id): Path<String>,
     req: Request,
 ) -> Result<Response, ApiError> {
-    let (pick, _) = read_query(&req, "pick")?;
-    let pick = pick.unwrap_or_default();
+    let pick = pick_param(&req)?.unwrap_or_default();
     negotiate(req.headers(), &["text/csv"])?;
     let deadline = deadline_of(&req, &app);
     let (store, _) = instructor_at(&app, req.headers(), &id).await?;
@@ -218,7 +217,7 @@ async fn stats(
     Path(id): Path<String>,
     req: Request,
 ) -> Result<Response, ApiError> {
-    let (pick, _) = read_query(&req, "pick")?;
+    let pick = pick_param(&req)?;
     negotiate(req.headers(), &["application/json"])?;
     let deadline = deadline_of(&req, &app);
     let (store, stored) = instructor_at(&app, req.headers(), &id).await?;

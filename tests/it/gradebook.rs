@@ -15,7 +15,7 @@ use crate::assignments_http::{
 };
 use crate::auth::{ADMIN, create_token, serve};
 use crate::openapi::{Answer, check, document};
-use crate::support::raytile;
+use crate::support::{decode_png, encode_png, raytile};
 use crate::support_server::{client, problem};
 
 /// A file part of a submission: the scene, the file's name, its bytes.
@@ -62,6 +62,13 @@ fn csv_rows(body: &[u8]) -> Vec<Vec<String>> {
         .collect()
 }
 
+/// `png` upside down: what a tracer with y pointing up makes.
+fn flipped(png: &[u8]) -> Vec<u8> {
+    let (w, h, rgb) = decode_png(png);
+    let rows: Vec<&[u8]> = rgb.chunks(w as usize * 3).rev().collect();
+    encode_png(w, h, &rows.concat())
+}
+
 /// The score as the gradebook writes it (at most four decimals).
 fn short(x: &Value) -> String {
     raytile::grade::score::short(x.as_f64().expect("a number"))
@@ -81,7 +88,9 @@ async fn gradebook_flow(store: &[&str]) {
     let file = files.path().join("ray-casting.json");
 
     // Pushed from the command line: the revision alone on stdout.
-    let (spheres, secret) = (small("sphere.json"), small("showcase.json"));
+    // The visible scene is not symmetric top to bottom, so that an image upside down
+    // fails and is diagnosed.
+    let (spheres, secret) = (small("showcase.json"), small("sphere.json"));
     let doc = assignment(
         "Ray casting",
         vec![
@@ -151,7 +160,7 @@ async fn gradebook_flow(store: &[&str]) {
         render_png(url, &secret).await,
         black_png(),
     );
-    let sent: [(&str, Vec<Part>); 4] = [
+    let sent: [(&str, Vec<Part>); 5] = [
         (
             "amy",
             vec![
@@ -174,6 +183,13 @@ async fn gradebook_flow(store: &[&str]) {
             ],
         ),
         (ODD_STUDENT, vec![("spheres", "spheres.png", black.clone())]),
+        (
+            "bob",
+            vec![
+                ("spheres", "spheres.png", flipped(&right_spheres)),
+                ("secret", "secret.png", right_secret.clone()),
+            ],
+        ),
     ];
     for (student, files) in sent {
         let (answer, _, _) = submit(
@@ -204,7 +220,7 @@ async fn gradebook_flow(store: &[&str]) {
     let all = json_of(&listing)["submissions"].clone();
     let all = all.as_array().expect("a list");
     let students: Vec<&str> = all.iter().map(|s| s["student"].as_str().unwrap()).collect();
-    assert_eq!(students, ["amy", "bob", "amy", ODD_STUDENT]);
+    assert_eq!(students, ["amy", "bob", "amy", ODD_STUDENT, "bob"]);
     let statuses = |s: &Value| -> Vec<String> {
         s["scenes"]
             .as_array()
@@ -222,6 +238,8 @@ async fn gradebook_flow(store: &[&str]) {
     assert_eq!(statuses(&all[0]), ["spheres=passed", "secret=failed"]);
     assert_eq!(statuses(&all[1]), ["spheres=passed", "secret=passed"]);
     assert_eq!(statuses(&all[3]), ["spheres=failed", "secret=missing"]);
+    assert_eq!(statuses(&all[4]), ["spheres=failed", "secret=passed"]);
+    assert_eq!(all[4]["scenes"][0]["diagnosis"][0], "flipped_vertically");
     assert!(
         all.iter()
             .all(|s| s["revision"] == 2 && s["max_score"] == 10.0)
@@ -267,7 +285,7 @@ async fn gradebook_flow(store: &[&str]) {
     };
     assert_eq!(
         rows,
-        [row(&all[2], "2"), row(&all[1], "1"), row(&all[3], "1")]
+        [row(&all[2], "2"), row(&all[4], "2"), row(&all[3], "1")]
     );
     let best = read(
         url,
@@ -278,7 +296,7 @@ async fn gradebook_flow(store: &[&str]) {
     .await;
     assert_eq!(
         csv_rows(&best.body),
-        [row(&all[0], "2"), row(&all[1], "1"), row(&all[3], "1")]
+        [row(&all[0], "2"), row(&all[1], "2"), row(&all[3], "1")]
     );
     let explicit = read(
         url,
@@ -331,13 +349,13 @@ async fn gradebook_flow(store: &[&str]) {
     let s = json_of(&stats);
     assert_eq!(
         (s["submissions"].as_u64(), s["students"].as_u64()),
-        (Some(4), Some(3))
+        (Some(5), Some(3))
     );
     assert_eq!(
         (s["pick"].as_str(), s["revision"].as_i64()),
         (Some("all"), Some(2))
     );
-    assert_eq!(s["last_submitted"], all[3]["submitted"]);
+    assert_eq!(s["last_submitted"], all[4]["submitted"]);
     let (sph, sec) = (&s["scenes"][0], &s["scenes"][1]);
     assert_eq!(
         (sph["name"].as_str(), sec["name"].as_str()),
@@ -345,21 +363,26 @@ async fn gradebook_flow(store: &[&str]) {
     );
     assert_eq!(
         sph["statuses"],
-        json!({"passed": 2, "failed": 2, "missing": 0, "ungradable": 0})
+        json!({"passed": 2, "failed": 3, "missing": 0, "ungradable": 0})
     );
-    assert_eq!(sph["pass_rate"], 0.5);
+    assert_eq!(sph["pass_rate"], 0.4);
     assert_eq!(sph["max_points"], 5.0);
     let mean: f64 = all
         .iter()
         .map(|x| x["scenes"][0]["points"].as_f64().unwrap())
         .sum::<f64>()
-        / 4.0;
+        / 5.0;
     assert!((sph["mean_points"].as_f64().unwrap() - mean).abs() < 1e-9);
     assert_eq!(
         sec["statuses"],
-        json!({"passed": 1, "failed": 2, "missing": 1, "ungradable": 0})
+        json!({"passed": 2, "failed": 2, "missing": 1, "ungradable": 0})
     );
-    // The hidden scene's feedback was never shown, so it names no mistakes.
+    // The upside-down image's mistake is named; the black ones match none. The hidden
+    // scene's feedback was never shown, so it names no mistakes.
+    assert_eq!(
+        sph["diagnoses"][0],
+        json!({"name": "flipped_vertically", "count": 1})
+    );
     assert_eq!(sec["diagnoses"], json!([]));
     let latest_stats = read(
         url,
@@ -373,7 +396,9 @@ async fn gradebook_flow(store: &[&str]) {
         (l["submissions"].as_u64(), l["pick"].as_str()),
         (Some(3), Some("latest"))
     );
-    assert_eq!(l["scenes"][0]["statuses"]["passed"], 1);
+    // Of the latest, bob's upside-down one replaces his right one.
+    assert_eq!(l["scenes"][0]["statuses"]["passed"], 0);
+    assert_eq!(l["scenes"][1]["statuses"]["passed"], 1);
 
     // Nobody but an instructor: 401 without a token, 403 for the assignment's grader.
     for (path, template) in [
