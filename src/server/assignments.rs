@@ -45,6 +45,7 @@ use serde_json::{Map, Value, json};
 use tokio::sync::OnceCell;
 
 use super::AppState;
+use super::admission::CostLimit;
 use super::auth::{Auth, scoped_to, sees};
 use super::error::ApiError;
 use super::extract::{
@@ -55,10 +56,11 @@ use super::grade::{decoding_for, family, part_hint};
 use super::job;
 use super::memory::{Charge, Reservation};
 use crate::assignment::grade::{SubmittedFile, grade_submission};
-use crate::assignment::{self, AssignmentError, report};
+use crate::assignment::{self, AssignmentError, Graded, report};
 use crate::format::footprint::Family;
 use crate::grade::answer::ReportForm;
 use crate::grade::{self, GradeOptions};
+use crate::render::{Renderer, Work};
 use crate::scene::Problem;
 use crate::scene::footprint::{self as scene_footprint, JsonShape};
 use crate::store::assignments::{NewSubmission, PutError, Submission};
@@ -220,10 +222,12 @@ async fn parse_charged<T: Send + 'static>(
     blocking(app, deadline, move || parse(&text)).await
 }
 
-/// `PUT /v1/assignments/{id}`: the document validated as strictly as a scene, then
-/// stored as the next revision.
+/// `PUT /v1/assignments/{id}`: the document validated as strictly as a scene, each
+/// scene's reference priced against `--max-rays` (so that no submission is refused
+/// for it later), then stored as the next revision.
 async fn put(
     State(app): State<AppState>,
+    info: RequestInfo,
     Path(id): Path<String>,
     req: Request,
 ) -> Result<Response, ApiError> {
@@ -250,13 +254,13 @@ async fn put(
         "parsing the assignment",
         deadline,
         move |t| {
-            let parsed = assignment::parse(t.as_bytes(), &limits).map(|_| ());
+            let parsed = assignment::parse(t.as_bytes(), &limits);
             (t.to_owned(), parsed)
         },
     )
     .await?;
-    match parsed {
-        Ok(()) => {}
+    let a = match parsed {
+        Ok(a) => a,
         Err(AssignmentError::Syntax {
             message,
             line,
@@ -272,8 +276,30 @@ async fn put(
         Err(AssignmentError::Invalid(problems)) => {
             return Err(ApiError::InvalidAssignment(problems));
         }
-    }
-    drop(memory);
+    };
+    let (cost, metrics) = (CostLimit::new(&app.config), app.metrics.clone());
+    job::run(&app, &info, "assignment_cost", move |cancel| {
+        // The parsed assignment is what the memory holds.
+        let _memory = memory;
+        for (i, s) in a.scenes.iter().enumerate() {
+            let r = Renderer::new(s.scene.clone());
+            // An image's rays are a superset of the hit data's.
+            let work = match s.graded {
+                Graded::Hits => Work::Hits,
+                Graded::Image | Graded::Both => Work::Colour,
+            };
+            cost.check(
+                &r,
+                r.frame(),
+                work,
+                cancel,
+                &metrics,
+                &format!("/scenes/{i}/scene"),
+            )?;
+        }
+        Ok::<_, ApiError>(())
+    })
+    .await??;
     let put = auth
         .store()
         .put_assignment(&id, &text, expected)
@@ -334,10 +360,16 @@ async fn list(State(app): State<AppState>, headers: HeaderMap) -> Result<Respons
     let body = blocking(&app, deadline, move || {
         let items: Vec<Value> = listed
             .iter()
-            .map(|l| {
-                let s: Summary = serde_json::from_str(&l.stored.document).map_err(|e| {
-                    ApiError::Internal(format!("stored assignment `{}`: {e}", l.id))
-                })?;
+            .filter_map(|l| {
+                // Every document was validated when it was stored; one that does not
+                // read (written by hand into the database) is left out, not fatal.
+                let s: Summary = match serde_json::from_str(&l.stored.document) {
+                    Ok(s) => s,
+                    Err(e) => {
+                        tracing::warn!(assignment = %l.id, error = %e, "a stored assignment does not read: not listed");
+                        return None;
+                    }
+                };
                 let mut item = json!({
                     "id": l.id,
                     "title": s.title,
@@ -347,9 +379,9 @@ async fn list(State(app): State<AppState>, headers: HeaderMap) -> Result<Respons
                 if let Some(due) = s.due {
                     item["due"] = json!(due);
                 }
-                Ok(item)
+                Some(item)
             })
-            .collect::<Result<_, ApiError>>()?;
+            .collect();
         serde_json::to_vec(&json!({ "assignments": items }))
             .map_err(|e| ApiError::Internal(e.to_string()))
     })

@@ -683,3 +683,53 @@ async fn a_hidden_scene_gives_nothing_away_and_each_scene_fares_on_its_own() {
     problem(res, 401, "unauthorized").await;
     assert!(data.join("raytile.db").is_file());
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_assignment_too_costly_to_grade_is_refused_when_pushed() {
+    let dir = tempfile::tempdir().expect("a temp dir");
+    let data = dir.path().join("data");
+    let server = serve(
+        &[
+            "--data-dir",
+            data.to_str().expect("UTF-8"),
+            "--max-rays",
+            "100",
+        ],
+        &[("RAYTILE_ADMIN_TOKEN", ADMIN)],
+    );
+    let doc = assignment(
+        "Costly",
+        vec![
+            entry(
+                "tiny",
+                resized(shipped("sphere.json"), 4, 4),
+                "hits",
+                "visible",
+            ),
+            entry("costly", small("sphere.json"), "image", "visible"),
+        ],
+    );
+    let answer = put(&server.url, "costly", &doc, ADMIN, &[]).await;
+    assert_eq!(answer.status, 422);
+    let body = json_of(&answer);
+    assert_eq!(
+        body["type"],
+        "https://raytile.example/problems/invalid-scene"
+    );
+    let pointers: Vec<&str> = body["problems"]
+        .as_array()
+        .expect("problems")
+        .iter()
+        .filter_map(|p| p["pointer"].as_str())
+        .collect();
+    assert!(
+        pointers.contains(&"/scenes/1/scene/image/width"),
+        "{pointers:?}"
+    );
+    assert!(
+        pointers.iter().all(|p| p.starts_with("/scenes/1/scene/")),
+        "{pointers:?}"
+    );
+    let res = get(&server.url, "/v1/assignments/costly", Some(ADMIN)).await;
+    problem(res, 404, "not-found").await;
+}
