@@ -63,7 +63,7 @@ use crate::grade::{self, GradeOptions};
 use crate::render::{Renderer, Work};
 use crate::scene::Problem;
 use crate::scene::footprint::{self as scene_footprint, JsonShape};
-use crate::store::assignments::{NewSubmission, PutError, Submission};
+use crate::store::assignments::{NewSubmission, PutError, Recorded, Submission, Window};
 use crate::store::{Role, Store, StoreError};
 
 /// The routes.
@@ -609,15 +609,18 @@ async fn check_rate(
         .await
         .map_err(db)?;
     match times.get(limit as usize - 1) {
-        Some(&oldest) => {
-            let wait_ms = (oldest + HOUR_MS - now).max(0) as u64;
-            app.metrics.reject("rate_limit");
-            Err(ApiError::TooManySubmissions {
-                limit,
-                retry_after_seconds: wait_ms.div_ceil(1000).max(1),
-            })
-        }
+        Some(&oldest) => Err(rate_limited(app, limit, oldest)),
         None => Ok(()),
+    }
+}
+
+/// The 429 of a full hour whose oldest counted submission was recorded at `oldest_ms`.
+fn rate_limited(app: &AppState, limit: u32, oldest_ms: i64) -> ApiError {
+    let wait_ms = (oldest_ms + HOUR_MS - crate::store::now_ms()).max(0) as u64;
+    app.metrics.reject("rate_limit");
+    ApiError::TooManySubmissions {
+        limit,
+        retry_after_seconds: wait_ms.div_ceil(1000).max(1),
     }
 }
 
@@ -797,21 +800,45 @@ async fn submit(
     .await??;
     let json = String::from_utf8(json)
         .map_err(|e| ApiError::Internal(format!("the report is not UTF-8: {e}")))?;
-    let (sub, fresh) = store
-        .record_submission(&NewSubmission {
-            assignment: &id,
-            revision,
-            student: &student,
-            idempotency_key: key.as_deref(),
-            result: &json,
-            score,
-        })
-        .await
-        .map_err(db)?;
-    if !fresh {
+    let new = NewSubmission {
+        assignment: &id,
+        revision,
+        student: &student,
+        idempotency_key: key.as_deref(),
+        result: &json,
+        score,
+    };
+    let recorded = match app.config.submissions_per_hour {
+        0 => match store.record_submission(&new).await.map_err(db)? {
+            (sub, true) => Recorded::New(sub),
+            (sub, false) => Recorded::Existing(sub),
+        },
+        // Checked again as it is recorded: submissions graded at the same time may
+        // have filled the hour meanwhile, and their verdicts are withheld.
+        limit => {
+            let now = crate::store::now_ms();
+            let window = Window {
+                limit,
+                since_ms: now - HOUR_MS,
+            };
+            store
+                .record_submission_within(&new, window)
+                .await
+                .map_err(db)?
+        }
+    };
+    let sub = match recorded {
+        Recorded::New(sub) => sub,
         // A concurrent retry with the same key was recorded first: answer that one.
-        return replay(&app, &id, sub, form, deadline).await;
-    }
+        Recorded::Existing(sub) => return replay(&app, &id, sub, form, deadline).await,
+        Recorded::Limited { oldest_ms } => {
+            return Err(rate_limited(
+                &app,
+                app.config.submissions_per_hour,
+                oldest_ms,
+            ));
+        }
+    };
     tracing::info!(token_id = %who.id, assignment = %id, submission = %sub.id, score, "submission recorded");
     let body = answer.unwrap_or_else(|| json.into_bytes());
     Ok(graded(StatusCode::CREATED, form, &id, &sub.id, body))

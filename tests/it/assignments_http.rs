@@ -733,3 +733,59 @@ async fn an_assignment_too_costly_to_grade_is_refused_when_pushed() {
     let res = get(&server.url, "/v1/assignments/costly", Some(ADMIN)).await;
     problem(res, 404, "not-found").await;
 }
+
+/// Submissions made at once by one student: the limit holds as they are recorded.
+async fn concurrent_flow(store: &[&str]) {
+    let server = serve(
+        &[
+            &["--submissions-per-hour", "2", "--max-renders", "8"],
+            store,
+        ]
+        .concat(),
+        &[("RAYTILE_ADMIN_TOKEN", ADMIN)],
+    );
+    let url = server.url.clone();
+    let id = fresh("burst");
+    let doc = assignment(
+        "Burst",
+        vec![entry("spheres", small("sphere.json"), "image", "visible")],
+    );
+    assert_eq!(put(&url, &id, &doc, ADMIN, &[]).await.status, 201);
+    let tasks: Vec<_> = (0..6)
+        .map(|_| {
+            let (url, id) = (url.clone(), id.clone());
+            tokio::spawn(async move {
+                let files = vec![("spheres", "spheres.png", black_png())];
+                let s = Submit {
+                    student: "busy",
+                    files,
+                    report: None,
+                    key: None,
+                };
+                submit(&url, &id, ADMIN, s).await.0.status
+            })
+        })
+        .collect();
+    let mut statuses = Vec::new();
+    for t in tasks {
+        statuses.push(t.await.expect("a task"));
+    }
+    statuses.sort_unstable();
+    assert_eq!(statuses, [201, 201, 429, 429, 429, 429]);
+    assert_eq!(submissions_in_store(store, &id, "busy").await, 2);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn submissions_at_once_cannot_pass_the_limit_together_on_sqlite() {
+    let dir = tempfile::tempdir().expect("a temp dir");
+    let data = dir.path().join("data");
+    concurrent_flow(&["--data-dir", data.to_str().expect("UTF-8")]).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs PostgreSQL: run .ci/test-all"]
+async fn submissions_at_once_cannot_pass_the_limit_together_on_postgres() {
+    let url = std::env::var("RAYTILE_TEST_DATABASE_URL")
+        .expect("RAYTILE_TEST_DATABASE_URL names a PostgreSQL database");
+    concurrent_flow(&["--database", &url]).await;
+}
