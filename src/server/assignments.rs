@@ -203,13 +203,13 @@ fn expected_revision(headers: &HeaderMap) -> Result<Option<i64>, ApiError> {
 async fn parse_charged<T: Send + 'static>(
     app: &AppState,
     memory: &mut Reservation,
-    text: String,
+    text: Bytes,
     what: &str,
     deadline: tokio::time::Instant,
-    parse: impl FnOnce(&str) -> T + Send + 'static,
+    parse: impl FnOnce(&[u8]) -> T + Send + 'static,
 ) -> Result<T, ApiError> {
     let (text, shape) = blocking(app, deadline, move || {
-        let shape = JsonShape::scan(text.as_bytes());
+        let shape = JsonShape::scan(&text);
         (text, shape)
     })
     .await?;
@@ -244,18 +244,17 @@ async fn put(
     }
     let deadline = deadline_of(&req, &app);
     let (_, bytes, mut memory) = read_charged(req, &app, 1, "the body").await?;
-    let text = String::from_utf8(Vec::from(bytes))
-        .map_err(|_| ApiError::BadRequest("the body is not UTF-8".into()))?;
     let limits = app.config.limits();
     let (text, parsed) = parse_charged(
         &app,
         &mut memory,
-        text,
+        bytes,
         "parsing the assignment",
         deadline,
         move |t| {
-            let parsed = assignment::parse(t.as_bytes(), &limits);
-            (t.to_owned(), parsed)
+            // Valid JSON is UTF-8, so a document that parses is text.
+            let parsed = assignment::parse(t, &limits);
+            (String::from_utf8_lossy(t).into_owned(), parsed)
         },
     )
     .await?;
@@ -392,8 +391,8 @@ async fn list(State(app): State<AppState>, headers: HeaderMap) -> Result<Respons
 /// What a grader may see of an assignment document (validated when it was stored):
 /// the title, the due date, and each scene's name, points, what is graded and its
 /// scene document.
-fn grader_view(text: &str) -> Result<Vec<u8>, serde_json::Error> {
-    let Value::Object(mut top) = serde_json::from_str::<Value>(text)? else {
+fn grader_view(text: &[u8]) -> Result<Vec<u8>, serde_json::Error> {
+    let Value::Object(mut top) = serde_json::from_slice::<Value>(text)? else {
         return Ok(b"{}".to_vec());
     };
     let mut view = Map::new();
@@ -449,7 +448,7 @@ async fn read(
             let view = parse_charged(
                 &app,
                 &mut memory,
-                stored.document,
+                Bytes::from(stored.document),
                 "reading the assignment",
                 deadline,
                 grader_view,
@@ -759,10 +758,10 @@ async fn submit(
     let a = parse_charged(
         &app,
         &mut memory,
-        stored.document,
+        Bytes::from(stored.document),
         "parsing the assignment",
         deadline,
-        move |t| assignment::parse(t.as_bytes(), &limits),
+        move |t| assignment::parse(t, &limits),
     )
     .await?
     .map_err(|e| {
@@ -793,13 +792,12 @@ async fn submit(
         if cancel.is_cancelled() {
             return Err(ApiError::DeadlineExceeded(deadline_len));
         }
-        let json = report::write(&result, ReportForm::Json);
+        let json = String::from_utf8(report::write(&result, ReportForm::Json))
+            .map_err(|e| ApiError::Internal(format!("the report is not UTF-8: {e}")))?;
         let answer = (form != ReportForm::Json).then(|| report::write(&result, form));
         Ok((json, answer, result.score))
     })
     .await??;
-    let json = String::from_utf8(json)
-        .map_err(|e| ApiError::Internal(format!("the report is not UTF-8: {e}")))?;
     let new = NewSubmission {
         assignment: &id,
         revision,
@@ -906,7 +904,7 @@ mod tests {
             {"name": "s", "scene": {"version": 1}, "points": 5, "grade": "hits",
              "visibility": "hidden", "feedback": "after_due_date",
              "tolerances": {"lambda_rel": 1e-6}, "scoring": "linear"}]}"#;
-        let v: Value = serde_json::from_slice(&grader_view(doc).unwrap()).unwrap();
+        let v: Value = serde_json::from_slice(&grader_view(doc.as_bytes()).unwrap()).unwrap();
         assert_eq!(
             v,
             json!({"version": 1, "title": "t", "due": "2026-12-24T23:59:00Z", "scenes": [
