@@ -645,6 +645,23 @@ async fn a_hidden_scene_gives_nothing_away_and_each_scene_fares_on_its_own() {
     );
     assert_eq!(result["score"], 5.0);
 
+    // Nothing asks a submission's answer for more than the report: no worst pixels, no
+    // difference image.
+    for query in ["worst=1000", "output=diff", "inline_diff=true"] {
+        let form = Form::new()
+            .text("student", "s")
+            .part("secret", Part::bytes(black_png()).file_name("secret.png"));
+        let res = authed(
+            client().post(format!("{url}/v1/assignments/{id}/submissions?{query}")),
+            Some(ADMIN),
+        )
+        .multipart(form)
+        .send()
+        .await
+        .expect("an answer");
+        problem(res, 400, "bad-request").await;
+    }
+
     // Requests the route refuses, each as documented.
     let form = Form::new().part("secret", Part::bytes(black_png()).file_name("secret.png"));
     let res = authed(
