@@ -126,8 +126,26 @@ const HOUR_MS: i64 = 3_600_000;
 const MAX_STUDENT_LEN: usize = 256;
 const MAX_KEY_LEN: usize = 255;
 
+/// A store failure as the client sees it: a busy database (no connection free in
+/// time, SQLite's writer lock not free, PostgreSQL out of connections) is 503 with
+/// `Retry-After`, so that a burst of submissions is answered as a busy server would;
+/// anything else is a fault of ours.
 fn db(e: StoreError) -> ApiError {
-    ApiError::Internal(format!("the database failed: {e}"))
+    let busy = match &e {
+        StoreError::Database(sqlx::Error::PoolTimedOut) => true,
+        // SQLite's SQLITE_BUSY and its extended codes; PostgreSQL's too_many_connections
+        // and cannot_connect_now.
+        StoreError::Database(sqlx::Error::Database(d)) => d
+            .code()
+            .is_some_and(|c| matches!(c.as_ref(), "5" | "261" | "517" | "773" | "53300" | "57P03")),
+        _ => false,
+    };
+    if busy {
+        tracing::warn!(error = %e, "the database is busy");
+        ApiError::DatabaseBusy
+    } else {
+        ApiError::Internal(format!("the database failed: {e}"))
+    }
 }
 
 fn not_found(id: &str) -> ApiError {
@@ -880,6 +898,18 @@ mod tests {
                 "{bad:?}"
             );
         }
+    }
+
+    #[test]
+    fn a_busy_database_is_503_and_other_failures_500() {
+        assert_eq!(
+            db(StoreError::Database(sqlx::Error::PoolTimedOut)),
+            ApiError::DatabaseBusy
+        );
+        assert!(matches!(
+            db(StoreError::Corrupt("x".into())),
+            ApiError::Internal(_)
+        ));
     }
 
     #[test]
