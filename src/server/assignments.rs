@@ -99,8 +99,9 @@ impl Course {
         }
     }
 
-    /// The token checks, opening the database the first time.
-    async fn auth(&self, app: &AppState) -> Result<&Auth, ApiError> {
+    /// The token checks, opening the database the first time: what every route on
+    /// assignments (these, and the gradebook's) checks tokens with and reads from.
+    pub async fn auth(&self, app: &AppState) -> Result<&Auth, ApiError> {
         self.auth
             .get_or_try_init(|| async {
                 let store = app
@@ -130,7 +131,7 @@ const MAX_KEY_LEN: usize = 255;
 /// time, SQLite's writer lock not free, PostgreSQL out of connections) is 503 with
 /// `Retry-After`, so that a burst of submissions is answered as a busy server would;
 /// anything else is a fault of ours.
-fn db(e: StoreError) -> ApiError {
+pub fn store_error(e: StoreError) -> ApiError {
     let busy = match &e {
         StoreError::Database(sqlx::Error::PoolTimedOut) => true,
         // SQLite's SQLITE_BUSY and its extended codes; PostgreSQL's too_many_connections
@@ -331,7 +332,7 @@ async fn put(
             PutError::Conflict { expected, current } => ApiError::Conflict(format!(
                 "the assignment `{id}` is at revision {current}, not {expected}: fetch it again"
             )),
-            PutError::Store(e) => db(e),
+            PutError::Store(e) => store_error(e),
         })?;
     tracing::info!(token_id = %who.id, assignment = %id, revision = put.revision, "assignment stored");
     let body = serde_json::to_vec(&json!({"id": id, "revision": put.revision}))
@@ -369,7 +370,7 @@ async fn list(State(app): State<AppState>, headers: HeaderMap) -> Result<Respons
         .store()
         .live_assignments()
         .await
-        .map_err(db)?
+        .map_err(store_error)?
         .into_iter()
         .filter(|l| sees(&who, &l.id))
         .collect();
@@ -456,7 +457,7 @@ async fn read(
         .store()
         .assignment(&id)
         .await
-        .map_err(db)?
+        .map_err(store_error)?
         .ok_or_else(|| not_found(&id))?;
     let (body, _memory) = match who.role {
         Role::Instructor => (stored.document.into_bytes(), None),
@@ -492,7 +493,12 @@ async fn delete(
     check_id(&id)?;
     let auth = app.course.auth(&app).await?;
     let who = auth.instructor(&headers).await?;
-    if !auth.store().delete_assignment(&id).await.map_err(db)? {
+    if !auth
+        .store()
+        .delete_assignment(&id)
+        .await
+        .map_err(store_error)?
+    {
         return Err(not_found(&id));
     }
     tracing::info!(token_id = %who.id, assignment = %id, "assignment deleted");
@@ -624,7 +630,7 @@ async fn check_rate(
     let times = store
         .recent_submission_times(id, student, now - HOUR_MS, limit)
         .await
-        .map_err(db)?;
+        .map_err(store_error)?;
     match times.get(limit as usize - 1) {
         Some(&oldest) => Err(rate_limited(app, limit, oldest)),
         None => Ok(()),
@@ -753,10 +759,10 @@ async fn submit(
     let stored = store
         .assignment(&id)
         .await
-        .map_err(db)?
+        .map_err(store_error)?
         .ok_or_else(|| not_found(&id))?;
     if let Some(k) = &key
-        && let Some(done) = store.submission_by_key(&id, k).await.map_err(db)?
+        && let Some(done) = store.submission_by_key(&id, k).await.map_err(store_error)?
     {
         return replay(&app, &id, done, form, deadline).await;
     }
@@ -825,7 +831,7 @@ async fn submit(
         score,
     };
     let recorded = match app.config.submissions_per_hour {
-        0 => match store.record_submission(&new).await.map_err(db)? {
+        0 => match store.record_submission(&new).await.map_err(store_error)? {
             (sub, true) => Recorded::New(sub),
             (sub, false) => Recorded::Existing(sub),
         },
@@ -840,7 +846,7 @@ async fn submit(
             store
                 .record_submission_within(&new, window)
                 .await
-                .map_err(db)?
+                .map_err(store_error)?
         }
     };
     let sub = match recorded {
@@ -903,11 +909,11 @@ mod tests {
     #[test]
     fn a_busy_database_is_503_and_other_failures_500() {
         assert_eq!(
-            db(StoreError::Database(sqlx::Error::PoolTimedOut)),
+            store_error(StoreError::Database(sqlx::Error::PoolTimedOut)),
             ApiError::DatabaseBusy
         );
         assert!(matches!(
-            db(StoreError::Corrupt("x".into())),
+            store_error(StoreError::Corrupt("x".into())),
             ApiError::Internal(_)
         ));
     }
