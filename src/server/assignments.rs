@@ -363,7 +363,11 @@ struct Named {
 
 /// `GET /v1/assignments`: every assignment an instructor's token may see, or those a
 /// grader's is scoped to.
-async fn list(State(app): State<AppState>, headers: HeaderMap) -> Result<Response, ApiError> {
+async fn list(
+    State(app): State<AppState>,
+    info: RequestInfo,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
     let auth = app.course.auth(&app).await?;
     let who = auth.principal(&headers).await?;
     let listed: Vec<_> = auth
@@ -374,7 +378,7 @@ async fn list(State(app): State<AppState>, headers: HeaderMap) -> Result<Respons
         .into_iter()
         .filter(|l| sees(&who, &l.id))
         .collect();
-    let deadline = tokio::time::Instant::now() + app.config.deadline();
+    let deadline = tokio::time::Instant::from_std(info.start + app.config.deadline());
     let body = blocking(&app, deadline, move || {
         let items: Vec<Value> = listed
             .iter()
