@@ -45,6 +45,7 @@ use serde_json::{Map, Value, json};
 use tokio::sync::OnceCell;
 
 use super::AppState;
+use super::admission::CostLimit;
 use super::auth::{Auth, scoped_to, sees};
 use super::error::ApiError;
 use super::extract::{
@@ -55,13 +56,14 @@ use super::grade::{decoding_for, family, part_hint};
 use super::job;
 use super::memory::{Charge, Reservation};
 use crate::assignment::grade::{SubmittedFile, grade_submission};
-use crate::assignment::{self, AssignmentError, report};
+use crate::assignment::{self, AssignmentError, Graded, report};
 use crate::format::footprint::Family;
 use crate::grade::answer::ReportForm;
 use crate::grade::{self, GradeOptions};
+use crate::render::{Renderer, Work};
 use crate::scene::Problem;
 use crate::scene::footprint::{self as scene_footprint, JsonShape};
-use crate::store::assignments::{NewSubmission, PutError, Submission};
+use crate::store::assignments::{NewSubmission, PutError, Recorded, Submission, Window};
 use crate::store::{Role, Store, StoreError};
 
 /// The routes.
@@ -97,8 +99,9 @@ impl Course {
         }
     }
 
-    /// The token checks, opening the database the first time.
-    pub(crate) async fn auth(&self, app: &AppState) -> Result<&Auth, ApiError> {
+    /// The token checks, opening the database the first time: what every route on
+    /// assignments (these, and the gradebook's) checks tokens with and reads from.
+    pub async fn auth(&self, app: &AppState) -> Result<&Auth, ApiError> {
         self.auth
             .get_or_try_init(|| async {
                 let store = app
@@ -124,8 +127,26 @@ const HOUR_MS: i64 = 3_600_000;
 const MAX_STUDENT_LEN: usize = 256;
 const MAX_KEY_LEN: usize = 255;
 
-pub(crate) fn db(e: StoreError) -> ApiError {
-    ApiError::Internal(format!("the database failed: {e}"))
+/// A store failure as the client sees it: a busy database (no connection free in
+/// time, SQLite's writer lock not free, PostgreSQL out of connections) is 503 with
+/// `Retry-After`, so that a burst of submissions is answered as a busy server would;
+/// anything else is a fault of ours.
+pub fn store_error(e: StoreError) -> ApiError {
+    let busy = match &e {
+        StoreError::Database(sqlx::Error::PoolTimedOut) => true,
+        // SQLite's SQLITE_BUSY and its extended codes; PostgreSQL's too_many_connections
+        // and cannot_connect_now.
+        StoreError::Database(sqlx::Error::Database(d)) => d
+            .code()
+            .is_some_and(|c| matches!(c.as_ref(), "5" | "261" | "517" | "773" | "53300" | "57P03")),
+        _ => false,
+    };
+    if busy {
+        tracing::warn!(error = %e, "the database is busy");
+        ApiError::DatabaseBusy
+    } else {
+        ApiError::Internal(format!("the database failed: {e}"))
+    }
 }
 
 pub(crate) fn not_found(id: &str) -> ApiError {
@@ -201,13 +222,13 @@ fn expected_revision(headers: &HeaderMap) -> Result<Option<i64>, ApiError> {
 async fn parse_charged<T: Send + 'static>(
     app: &AppState,
     memory: &mut Reservation,
-    text: String,
+    text: Bytes,
     what: &str,
     deadline: tokio::time::Instant,
-    parse: impl FnOnce(&str) -> T + Send + 'static,
+    parse: impl FnOnce(&[u8]) -> T + Send + 'static,
 ) -> Result<T, ApiError> {
     let (text, shape) = blocking(app, deadline, move || {
-        let shape = JsonShape::scan(text.as_bytes());
+        let shape = JsonShape::scan(&text);
         (text, shape)
     })
     .await?;
@@ -220,10 +241,12 @@ async fn parse_charged<T: Send + 'static>(
     blocking(app, deadline, move || parse(&text)).await
 }
 
-/// `PUT /v1/assignments/{id}`: the document validated as strictly as a scene, then
-/// stored as the next revision.
+/// `PUT /v1/assignments/{id}`: the document validated as strictly as a scene, each
+/// scene's reference priced against `--max-rays` (so that no submission is refused
+/// for it later), then stored as the next revision.
 async fn put(
     State(app): State<AppState>,
+    info: RequestInfo,
     Path(id): Path<String>,
     req: Request,
 ) -> Result<Response, ApiError> {
@@ -240,23 +263,22 @@ async fn put(
     }
     let deadline = deadline_of(&req, &app);
     let (_, bytes, mut memory) = read_charged(req, &app, 1, "the body").await?;
-    let text = String::from_utf8(Vec::from(bytes))
-        .map_err(|_| ApiError::BadRequest("the body is not UTF-8".into()))?;
     let limits = app.config.limits();
     let (text, parsed) = parse_charged(
         &app,
         &mut memory,
-        text,
+        bytes,
         "parsing the assignment",
         deadline,
         move |t| {
-            let parsed = assignment::parse(t.as_bytes(), &limits).map(|_| ());
-            (t.to_owned(), parsed)
+            // Valid JSON is UTF-8, so a document that parses is text.
+            let parsed = assignment::parse(t, &limits);
+            (String::from_utf8_lossy(t).into_owned(), parsed)
         },
     )
     .await?;
-    match parsed {
-        Ok(()) => {}
+    let a = match parsed {
+        Ok(a) => a,
         Err(AssignmentError::Syntax {
             message,
             line,
@@ -272,8 +294,30 @@ async fn put(
         Err(AssignmentError::Invalid(problems)) => {
             return Err(ApiError::InvalidAssignment(problems));
         }
-    }
-    drop(memory);
+    };
+    let (cost, metrics) = (CostLimit::new(&app.config), app.metrics.clone());
+    job::run(&app, &info, "assignment_cost", move |cancel| {
+        // The parsed assignment is what the memory holds.
+        let _memory = memory;
+        for (i, s) in a.scenes.iter().enumerate() {
+            let r = Renderer::new(s.scene.clone());
+            // An image's rays are a superset of the hit data's.
+            let work = match s.graded {
+                Graded::Hits => Work::Hits,
+                Graded::Image | Graded::Both => Work::Colour,
+            };
+            cost.check(
+                &r,
+                r.frame(),
+                work,
+                cancel,
+                &metrics,
+                &format!("/scenes/{i}/scene"),
+            )?;
+        }
+        Ok::<_, ApiError>(())
+    })
+    .await??;
     let put = auth
         .store()
         .put_assignment(&id, &text, expected)
@@ -288,7 +332,7 @@ async fn put(
             PutError::Conflict { expected, current } => ApiError::Conflict(format!(
                 "the assignment `{id}` is at revision {current}, not {expected}: fetch it again"
             )),
-            PutError::Store(e) => db(e),
+            PutError::Store(e) => store_error(e),
         })?;
     tracing::info!(token_id = %who.id, assignment = %id, revision = put.revision, "assignment stored");
     let body = serde_json::to_vec(&json!({"id": id, "revision": put.revision}))
@@ -319,25 +363,35 @@ struct Named {
 
 /// `GET /v1/assignments`: every assignment an instructor's token may see, or those a
 /// grader's is scoped to.
-async fn list(State(app): State<AppState>, headers: HeaderMap) -> Result<Response, ApiError> {
+async fn list(
+    State(app): State<AppState>,
+    info: RequestInfo,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
     let auth = app.course.auth(&app).await?;
     let who = auth.principal(&headers).await?;
     let listed: Vec<_> = auth
         .store()
         .live_assignments()
         .await
-        .map_err(db)?
+        .map_err(store_error)?
         .into_iter()
         .filter(|l| sees(&who, &l.id))
         .collect();
-    let deadline = tokio::time::Instant::now() + app.config.deadline();
+    let deadline = tokio::time::Instant::from_std(info.start + app.config.deadline());
     let body = blocking(&app, deadline, move || {
         let items: Vec<Value> = listed
             .iter()
-            .map(|l| {
-                let s: Summary = serde_json::from_str(&l.stored.document).map_err(|e| {
-                    ApiError::Internal(format!("stored assignment `{}`: {e}", l.id))
-                })?;
+            .filter_map(|l| {
+                // Every document was validated when it was stored; one that does not
+                // read (written by hand into the database) is left out, not fatal.
+                let s: Summary = match serde_json::from_str(&l.stored.document) {
+                    Ok(s) => s,
+                    Err(e) => {
+                        tracing::warn!(assignment = %l.id, error = %e, "a stored assignment does not read: not listed");
+                        return None;
+                    }
+                };
                 let mut item = json!({
                     "id": l.id,
                     "title": s.title,
@@ -347,9 +401,9 @@ async fn list(State(app): State<AppState>, headers: HeaderMap) -> Result<Respons
                 if let Some(due) = s.due {
                     item["due"] = json!(due);
                 }
-                Ok(item)
+                Some(item)
             })
-            .collect::<Result<_, ApiError>>()?;
+            .collect();
         serde_json::to_vec(&json!({ "assignments": items }))
             .map_err(|e| ApiError::Internal(e.to_string()))
     })
@@ -360,8 +414,8 @@ async fn list(State(app): State<AppState>, headers: HeaderMap) -> Result<Respons
 /// What a grader may see of an assignment document (validated when it was stored):
 /// the title, the due date, and each scene's name, points, what is graded and its
 /// scene document.
-fn grader_view(text: &str) -> Result<Vec<u8>, serde_json::Error> {
-    let Value::Object(mut top) = serde_json::from_str::<Value>(text)? else {
+fn grader_view(text: &[u8]) -> Result<Vec<u8>, serde_json::Error> {
+    let Value::Object(mut top) = serde_json::from_slice::<Value>(text)? else {
         return Ok(b"{}".to_vec());
     };
     let mut view = Map::new();
@@ -407,7 +461,7 @@ async fn read(
         .store()
         .assignment(&id)
         .await
-        .map_err(db)?
+        .map_err(store_error)?
         .ok_or_else(|| not_found(&id))?;
     let (body, _memory) = match who.role {
         Role::Instructor => (stored.document.into_bytes(), None),
@@ -417,7 +471,7 @@ async fn read(
             let view = parse_charged(
                 &app,
                 &mut memory,
-                stored.document,
+                Bytes::from(stored.document),
                 "reading the assignment",
                 deadline,
                 grader_view,
@@ -443,7 +497,12 @@ async fn delete(
     check_id(&id)?;
     let auth = app.course.auth(&app).await?;
     let who = auth.instructor(&headers).await?;
-    if !auth.store().delete_assignment(&id).await.map_err(db)? {
+    if !auth
+        .store()
+        .delete_assignment(&id)
+        .await
+        .map_err(store_error)?
+    {
         return Err(not_found(&id));
     }
     tracing::info!(token_id = %who.id, assignment = %id, "assignment deleted");
@@ -575,17 +634,20 @@ async fn check_rate(
     let times = store
         .recent_submission_times(id, student, now - HOUR_MS, limit)
         .await
-        .map_err(db)?;
+        .map_err(store_error)?;
     match times.get(limit as usize - 1) {
-        Some(&oldest) => {
-            let wait_ms = (oldest + HOUR_MS - now).max(0) as u64;
-            app.metrics.reject("rate_limit");
-            Err(ApiError::TooManySubmissions {
-                limit,
-                retry_after_seconds: wait_ms.div_ceil(1000).max(1),
-            })
-        }
+        Some(&oldest) => Err(rate_limited(app, limit, oldest)),
         None => Ok(()),
+    }
+}
+
+/// The 429 of a full hour whose oldest counted submission was recorded at `oldest_ms`.
+fn rate_limited(app: &AppState, limit: u32, oldest_ms: i64) -> ApiError {
+    let wait_ms = (oldest_ms + HOUR_MS - crate::store::now_ms()).max(0) as u64;
+    app.metrics.reject("rate_limit");
+    ApiError::TooManySubmissions {
+        limit,
+        retry_after_seconds: wait_ms.div_ceil(1000).max(1),
     }
 }
 
@@ -701,10 +763,10 @@ async fn submit(
     let stored = store
         .assignment(&id)
         .await
-        .map_err(db)?
+        .map_err(store_error)?
         .ok_or_else(|| not_found(&id))?;
     if let Some(k) = &key
-        && let Some(done) = store.submission_by_key(&id, k).await.map_err(db)?
+        && let Some(done) = store.submission_by_key(&id, k).await.map_err(store_error)?
     {
         return replay(&app, &id, done, form, deadline).await;
     }
@@ -724,10 +786,10 @@ async fn submit(
     let a = parse_charged(
         &app,
         &mut memory,
-        stored.document,
+        Bytes::from(stored.document),
         "parsing the assignment",
         deadline,
-        move |t| assignment::parse(t.as_bytes(), &limits),
+        move |t| assignment::parse(t, &limits),
     )
     .await?
     .map_err(|e| {
@@ -758,28 +820,51 @@ async fn submit(
         if cancel.is_cancelled() {
             return Err(ApiError::DeadlineExceeded(deadline_len));
         }
-        let json = report::write(&result, ReportForm::Json);
+        let json = String::from_utf8(report::write(&result, ReportForm::Json))
+            .map_err(|e| ApiError::Internal(format!("the report is not UTF-8: {e}")))?;
         let answer = (form != ReportForm::Json).then(|| report::write(&result, form));
         Ok((json, answer, result.score))
     })
     .await??;
-    let json = String::from_utf8(json)
-        .map_err(|e| ApiError::Internal(format!("the report is not UTF-8: {e}")))?;
-    let (sub, fresh) = store
-        .record_submission(&NewSubmission {
-            assignment: &id,
-            revision,
-            student: &student,
-            idempotency_key: key.as_deref(),
-            result: &json,
-            score,
-        })
-        .await
-        .map_err(db)?;
-    if !fresh {
+    let new = NewSubmission {
+        assignment: &id,
+        revision,
+        student: &student,
+        idempotency_key: key.as_deref(),
+        result: &json,
+        score,
+    };
+    let recorded = match app.config.submissions_per_hour {
+        0 => match store.record_submission(&new).await.map_err(store_error)? {
+            (sub, true) => Recorded::New(sub),
+            (sub, false) => Recorded::Existing(sub),
+        },
+        // Checked again as it is recorded: submissions graded at the same time may
+        // have filled the hour meanwhile, and their verdicts are withheld.
+        limit => {
+            let now = crate::store::now_ms();
+            let window = Window {
+                limit,
+                since_ms: now - HOUR_MS,
+            };
+            store
+                .record_submission_within(&new, window)
+                .await
+                .map_err(store_error)?
+        }
+    };
+    let sub = match recorded {
+        Recorded::New(sub) => sub,
         // A concurrent retry with the same key was recorded first: answer that one.
-        return replay(&app, &id, sub, form, deadline).await;
-    }
+        Recorded::Existing(sub) => return replay(&app, &id, sub, form, deadline).await,
+        Recorded::Limited { oldest_ms } => {
+            return Err(rate_limited(
+                &app,
+                app.config.submissions_per_hour,
+                oldest_ms,
+            ));
+        }
+    };
     tracing::info!(token_id = %who.id, assignment = %id, submission = %sub.id, score, "submission recorded");
     let body = answer.unwrap_or_else(|| json.into_bytes());
     Ok(graded(StatusCode::CREATED, form, &id, &sub.id, body))
@@ -826,6 +911,18 @@ mod tests {
     }
 
     #[test]
+    fn a_busy_database_is_503_and_other_failures_500() {
+        assert_eq!(
+            store_error(StoreError::Database(sqlx::Error::PoolTimedOut)),
+            ApiError::DatabaseBusy
+        );
+        assert!(matches!(
+            store_error(StoreError::Corrupt("x".into())),
+            ApiError::Internal(_)
+        ));
+    }
+
+    #[test]
     fn idempotency_keys_are_visible_ascii() {
         assert_eq!(idempotency_key(&headers(&[])).unwrap(), None);
         assert_eq!(
@@ -847,7 +944,7 @@ mod tests {
             {"name": "s", "scene": {"version": 1}, "points": 5, "grade": "hits",
              "visibility": "hidden", "feedback": "after_due_date",
              "tolerances": {"lambda_rel": 1e-6}, "scoring": "linear"}]}"#;
-        let v: Value = serde_json::from_slice(&grader_view(doc).unwrap()).unwrap();
+        let v: Value = serde_json::from_slice(&grader_view(doc.as_bytes()).unwrap()).unwrap();
         assert_eq!(
             v,
             json!({"version": 1, "title": "t", "due": "2026-12-24T23:59:00Z", "scenes": [

@@ -15,7 +15,7 @@ use axum::routing::get;
 use serde_json::json;
 
 use super::AppState;
-use super::assignments::{check_id, db, not_found};
+use super::assignments::{check_id, not_found, store_error};
 use super::error::ApiError;
 use super::extract::{blocking, deadline_of, negotiate, once, parse_choice, query_pairs};
 use crate::assignment::gradebook::{
@@ -48,7 +48,7 @@ async fn instructor_at(
     let stored = store
         .assignment(id)
         .await
-        .map_err(db)?
+        .map_err(store_error)?
         .ok_or_else(|| not_found(id))?;
     Ok((store, stored))
 }
@@ -129,7 +129,7 @@ async fn submissions(
     let subs = store
         .submissions(&id, student.as_deref())
         .await
-        .map_err(db)?;
+        .map_err(store_error)?;
     let body = blocking(&app, deadline, move || {
         let attempts = read_all(&id, subs)?;
         let views: Vec<_> = attempts.iter().map(Attempt::view).collect();
@@ -155,7 +155,7 @@ async fn grades(
     let scores: Vec<Scored> = store
         .scores(&id)
         .await
-        .map_err(db)?
+        .map_err(store_error)?
         .into_iter()
         .map(|s| Scored {
             id: s.id,
@@ -166,7 +166,7 @@ async fn grades(
         .collect();
     let chosen: Vec<Choice> = gradebook::pick(&scores, pick, |s| s);
     let ids: Vec<&str> = chosen.iter().map(|c| scores[c.index].id.as_str()).collect();
-    let results = store.results(&id, &ids).await.map_err(db)?;
+    let results = store.results(&id, &ids).await.map_err(store_error)?;
     let csv = blocking(&app, deadline, move || {
         let max_scores: std::collections::HashMap<String, f64> = results
             .into_iter()
@@ -221,7 +221,7 @@ async fn stats(
     negotiate(req.headers(), &["application/json"])?;
     let deadline = deadline_of(&req, &app);
     let (store, stored) = instructor_at(&app, req.headers(), &id).await?;
-    let subs = store.submissions(&id, None).await.map_err(db)?;
+    let subs = store.submissions(&id, None).await.map_err(store_error)?;
     let limits = app.config.limits();
     let body = blocking(&app, deadline, move || {
         let doc = assignment::parse(stored.document.as_bytes(), &limits).map_err(|e| {

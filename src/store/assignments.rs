@@ -66,6 +66,31 @@ pub struct NewSubmission<'a> {
     pub score: f64,
 }
 
+/// A limit on one student's submissions to one assignment: at most `limit` recorded
+/// after `since_ms`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Window {
+    /// Submissions allowed in the window.
+    pub limit: u32,
+    /// Where the window starts (ms since the epoch).
+    pub since_ms: i64,
+}
+
+/// What recording a submission within a [`Window`] did.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Recorded {
+    /// Recorded now.
+    New(Submission),
+    /// Recorded before under the same idempotency key: that one.
+    Existing(Submission),
+    /// Not recorded: the window holds `limit` submissions already.
+    Limited {
+        /// When the oldest of the newest `limit` was recorded: the window frees a place
+        /// when it leaves.
+        oldest_ms: i64,
+    },
+}
+
 /// A recorded submission.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Submission {
@@ -293,6 +318,81 @@ impl Store {
         }
     }
 
+    /// [`Store::record_submission`] within `window`: the count and the insert are one
+    /// statement (SQLite runs statements one at a time; on PostgreSQL a transaction
+    /// lock per student and assignment orders them), so concurrent submissions cannot
+    /// together pass the limit.
+    pub async fn record_submission_within(
+        &self,
+        s: &NewSubmission<'_>,
+        window: Window,
+    ) -> Result<Recorded, StoreError> {
+        if let Some(key) = s.idempotency_key
+            && let Some(existing) = self.submission_by_key(s.assignment, key).await?
+        {
+            return Ok(Recorded::Existing(existing));
+        }
+        let id = hex::encode(random_bytes::<16>()?);
+        let submitted_ms = now_ms();
+        let mut tx = self.pool().begin().await?;
+        if self.backend() == super::Backend::Postgres {
+            sqlx::query("SELECT pg_advisory_xact_lock(hashtext($1))")
+                .bind(format!("submissions\n{}\n{}", s.assignment, s.student))
+                .execute(&mut *tx)
+                .await?;
+        }
+        let inserted = sqlx::query(
+            "INSERT INTO submissions (id, assignment_id, revision, student, idempotency_key, \
+             submitted_ms, result, score) \
+             SELECT $1, $2, $3, $4, $5, $6, $7, $8 \
+             WHERE (SELECT COUNT(*) FROM submissions \
+                    WHERE assignment_id = $2 AND student = $4 AND submitted_ms > $9) < $10",
+        )
+        .bind(&id)
+        .bind(s.assignment)
+        .bind(s.revision)
+        .bind(s.student)
+        .bind(s.idempotency_key)
+        .bind(submitted_ms)
+        .bind(s.result)
+        .bind(s.score)
+        .bind(window.since_ms)
+        .bind(i64::from(window.limit))
+        .execute(&mut *tx)
+        .await;
+        match (inserted, s.idempotency_key) {
+            (Ok(done), _) if done.rows_affected() > 0 => {
+                tx.commit().await?;
+                Ok(Recorded::New(Submission {
+                    id,
+                    revision: s.revision,
+                    student: s.student.to_owned(),
+                    submitted_ms,
+                    result: s.result.to_owned(),
+                    score: s.score,
+                }))
+            }
+            (Ok(_), _) => {
+                tx.rollback().await?;
+                let times = self
+                    .recent_submission_times(s.assignment, s.student, window.since_ms, window.limit)
+                    .await?;
+                Ok(Recorded::Limited {
+                    oldest_ms: times.last().copied().unwrap_or(submitted_ms),
+                })
+            }
+            // A concurrent retry with the same key committed first: return its row.
+            (Err(sqlx::Error::Database(e)), Some(key)) if e.is_unique_violation() => {
+                tx.rollback().await?;
+                let existing = self.submission_by_key(s.assignment, key).await?;
+                existing
+                    .map(Recorded::Existing)
+                    .ok_or_else(|| StoreError::Corrupt("a conflicting key without its row".into()))
+            }
+            (Err(e), _) => Err(e.into()),
+        }
+    }
+
     /// The submission recorded for `assignment` under the idempotency key `key`.
     pub async fn submission_by_key(
         &self,
@@ -426,6 +526,36 @@ mod tests {
             .await
             .unwrap();
         assert!(later.is_empty());
+        // Within a window: the limit counts what the window holds, a replay is not
+        // recorded again, and a full window records nothing.
+        let window = Window {
+            limit: 4,
+            since_ms: 0,
+        };
+        let r = store
+            .record_submission_within(&new("s1", Some("k3")), window)
+            .await
+            .unwrap();
+        let Recorded::New(fourth) = r else {
+            panic!("{r:?}")
+        };
+        let r = store
+            .record_submission_within(&new("s1", Some("k3")), window)
+            .await
+            .unwrap();
+        assert_eq!(r, Recorded::Existing(fourth));
+        let r = store
+            .record_submission_within(&new("s1", None), window)
+            .await
+            .unwrap();
+        let oldest = store.submissions(&id, Some("s1")).await.unwrap()[0].submitted_ms;
+        assert_eq!(r, Recorded::Limited { oldest_ms: oldest });
+        let r = store
+            .record_submission_within(&new("s2", None), window)
+            .await
+            .unwrap();
+        assert!(matches!(r, Recorded::New(_)), "{r:?}");
+        assert_eq!(store.submissions(&id, Some("s1")).await.unwrap().len(), 4);
         let listed = store.live_assignments().await.unwrap();
         let mine = listed.iter().find(|l| l.id == id).unwrap();
         assert_eq!(mine.stored.revision, 2);
