@@ -131,13 +131,50 @@ await step("a PNG flipped vertically fails, with its difference image", async ()
   check(clip === "inset(0px 0px 0px 20%)" || clip === "inset(0 0 0 20%)", `the slider clips at ${clip}`);
 });
 
-await step("hit data in false colour", async () => {
-  await page.getByRole("button", { name: "Hit data" }).click();
+/** The RGBA of canvas `sel` at pixel (x, y). */
+async function pixel(sel, x, y) {
+  return page.$eval(sel, (c, [x, y]) => [...c.getContext("2d").getImageData(x, y, 1, 1).data], [x, y]);
+}
+
+await step("hit data from NPY: objects, depth and normals", async () => {
+  const accepts = [];
+  page.on("request", (r) => r.url().endsWith("/v1/hits") && accepts.push(r.headers().accept));
+  await page.locator("#hits-mode").selectOption("objects");
   await byId("hits-view").waitFor({ state: "visible", timeout });
   await page.locator("#legend", { hasText: "ball" }).waitFor({ timeout });
-  await byId("hits-view").hover();
-  await page.locator("#hover", { hasText: "ball" }).waitFor({ timeout });
-  await page.getByRole("button", { name: "Hit data" }).click();
+  check(accepts.length === 1 && accepts[0] === "application/x-npy", `hit data asked for ${accepts}`);
+  // The ball is object 0, the palette's first colour; a miss stays transparent.
+  let c = await pixel("#hits-canvas", 2, 2);
+  check(c.join() === "78,121,167,255", `objects at (2, 2): ${c}`);
+  c = await pixel("#hits-canvas", 0, 0);
+  check(c[3] === 0, `a miss at (0, 0) is drawn: ${c}`);
+  await byId("hits-view").scrollIntoViewIfNeeded();
+  const box = await byId("hits-view").boundingBox();
+  await page.mouse.move(box.x + (1.5 / 5) * box.width, box.y + (1.5 / 5) * box.height);
+  await page.mouse.move(box.x + (2.5 / 5) * box.width, box.y + (2.5 / 5) * box.height);
+  await page.locator("#hover", { hasText: "(u, v) = (2, 2) ·" }).waitFor({ timeout });
+  const hover = await page.locator("#hover").textContent();
+  for (const part of ["ball", "λ = 2.00000", "point (0.000, 0.000, 2.000)", "normal (-1.000, 0.000, 0.000)"]) {
+    check(hover.includes(part), `the hover line lacks ${part}: ${hover}`);
+  }
+  // λ as depth: (4, 2) is the lecture's nearest hit (λ ≈ 1.017), white; (2, 2) the
+  // farthest (λ = 2), the ramp's dark end.
+  await page.locator("#hits-mode").selectOption("depth");
+  await page.locator("#legend", { hasText: "near" }).waitFor({ timeout });
+  c = await pixel("#hits-canvas", 4, 2);
+  check(c.join() === "255,255,255,255", `depth at (4, 2): ${c}`);
+  c = await pixel("#hits-canvas", 2, 2);
+  check(c.join() === "55,55,55,255", `depth at (2, 2): ${c}`);
+  // Normals as colours: (2, 2)'s normal is (−1, 0, 0); (3, 1)'s has a negative y.
+  await page.locator("#hits-mode").selectOption("normals");
+  await page.locator("#legend", { hasText: "+x" }).waitFor({ timeout });
+  c = await pixel("#hits-canvas", 2, 2);
+  check(c.join() === "0,128,128,255", `normal at (2, 2): ${c}`);
+  c = await pixel("#hits-canvas", 3, 3);
+  check(c[1] > 128 && c[2] < 128, `normal at (3, 3): ${c}`);
+  await page.screenshot({ path: `${shots}/hit-data-normals.png` });
+  check(accepts.length === 1, "each view is drawn from the one download");
+  await page.locator("#hits-mode").selectOption("image");
   await byId("hits-view").waitFor({ state: "hidden", timeout });
 });
 
@@ -159,6 +196,17 @@ await step("cancel a large render and the ray counter stops", async () => {
     check(Date.now() < deadline, "the render never started");
     await new Promise((r) => setTimeout(r, 100));
   }
+  // Band by band: the top rows are on screen while the bottom ones are still tracing.
+  await page.waitForFunction(() => {
+    const live = document.querySelector("#live");
+    if (live.hidden || live.height !== 4096) return false;
+    const g = live.getContext("2d");
+    return g.getImageData(0, 0, 1, 1).data[3] === 255;
+  }, null, { timeout });
+  const bottom = await pixel("#live", 0, 4095);
+  check(bottom[3] === 0, `the last row is drawn before the render ends: ${bottom}`);
+  check(/rendering .* rows/.test(await byId("render-status").textContent()), "the status counts rows");
+  await page.screenshot({ path: `${shots}/band-by-band.png` });
   await page.getByRole("button", { name: "Cancel" }).click();
   await page.locator("[data-testid=render-status]", { hasText: "cancelled" }).waitFor({ timeout });
   // A render stops within a tile of its client leaving: let that tile finish.
