@@ -17,7 +17,7 @@ import schema from "../../api/scene.schema.json";
 
 const $ = (id) => document.getElementById(id);
 const STORE = "raytile.studio.scene";
-const state = { width: 0, height: 0, zoom: 1, selected: null, controller: null, url: null };
+const state = { width: 0, height: 0, zoom: 1, selected: null, rays: null, controller: null, url: null };
 
 // ---- problems ---------------------------------------------------------------------
 
@@ -102,7 +102,7 @@ const view = new EditorView({
     EditorView.contentAttributes.of({ "aria-label": "Scene document (JSON)" }),
   ],
 });
-window.studio = { view };
+window.studio = { view, selected: () => state.selected };
 
 function setScene(text) {
   view.dispatch({ changes: { from: 0, to: view.state.doc.length, insert: text } });
@@ -134,6 +134,10 @@ async function pick(href) {
   $("submission").hidden = true;
   $("wipe").hidden = true;
   $("trace").textContent = "Render, then click a pixel to see how its colour was computed.";
+  $("trace-tree").replaceChildren();
+  state.selected = null;
+  state.rays = null;
+  rayLegend();
   status(`loaded ${href.split("/").pop()}`);
 }
 
@@ -210,6 +214,7 @@ async function render() {
     clearHits();
     state.selected = null;
     state.rays = null;
+    rayLegend();
     applyZoom(true);
     const total = state.width * state.height;
     const g = liveCanvas(state.width, state.height).getContext("2d");
@@ -304,6 +309,7 @@ function drawGrid() {
     for (let y = 0; y <= state.height; y++) { g.moveTo(0, y * z + 0.5); g.lineTo(c.width, y * z + 0.5); }
     g.stroke();
   }
+  if (state.rays && $("show-rays").checked) drawRays(g, z);
   if (state.selected) {
     const [u, v] = state.selected;
     g.strokeStyle = "#ffcc00";
@@ -311,6 +317,76 @@ function drawGrid() {
     g.strokeRect(u * z + 1, v * z + 1, Math.max(z - 2, 2), Math.max(z - 2, 2));
   }
 }
+/** How each kind of ray is drawn: colour, and dashes for shadow rays. */
+const RAY_STYLE = {
+  primary: ["#ffcc00", []],
+  reflected: ["#35d0ff", []],
+  refracted: ["#ff5ad2", []],
+  total_internal_reflection: ["#ff9a3c", []],
+  shadow: ["#f4f4f4", [5, 4]],
+};
+
+/** The part of segment a→b inside the rectangle [x0, x1] × [y0, y1] (Liang–Barsky),
+ * or null: a ray may end far off the image (at a vanishing point, or cut where it
+ * passes the eye), and drawing it only needs the part on the canvas. */
+function clip([ax, ay], [bx, by], x0, y0, x1, y1) {
+  let t0 = 0;
+  let t1 = 1;
+  const dx = bx - ax;
+  const dy = by - ay;
+  for (const [p, q] of [[-dx, ax - x0], [dx, x1 - ax], [-dy, ay - y0], [dy, y1 - ay]]) {
+    if (p === 0) { if (q < 0) return null; continue; }
+    const t = q / p;
+    if (p < 0) { if (t > t1) return null; t0 = Math.max(t0, t); } else { if (t < t0) return null; t1 = Math.min(t1, t); }
+  }
+  return [[ax + t0 * dx, ay + t0 * dy], [ax + t1 * dx, ay + t1 * dy], t1 === 1];
+}
+
+/** The selected pixel's rays where they land on the image, as the server projected them
+ * (the trace's `screen`): shadow rays dashed, a blocked one ending in a cross. */
+function drawRays(g, z) {
+  g.save();
+  g.lineCap = "round";
+  const m = 4 * Math.max(state.width, state.height);
+  for (const r of state.rays) {
+    const [colour, dash] = RAY_STYLE[r.role] ?? RAY_STYLE.primary;
+    const seg = clip(r.from, r.to, -m, -m, state.width + m, state.height + m);
+    if (!seg) continue;
+    const [[ax, ay], [bx, by], whole] = seg;
+    g.setLineDash(dash);
+    g.lineWidth = 2.5;
+    g.strokeStyle = "rgba(0,0,0,.55)";
+    g.beginPath(); g.moveTo(ax * z, ay * z); g.lineTo(bx * z, by * z); g.stroke();
+    g.lineWidth = 1.5;
+    g.strokeStyle = colour;
+    g.stroke();
+    g.setLineDash([]);
+    g.fillStyle = colour;
+    g.beginPath(); g.arc(ax * z, ay * z, 3, 0, 2 * Math.PI); g.fill();
+    if (!whole) continue;
+    if (r.ends === "blocked") {
+      g.strokeStyle = "#ff4d4d";
+      g.lineWidth = 2;
+      g.beginPath();
+      g.moveTo(bx * z - 4, by * z - 4); g.lineTo(bx * z + 4, by * z + 4);
+      g.moveTo(bx * z + 4, by * z - 4); g.lineTo(bx * z - 4, by * z + 4);
+      g.stroke();
+    } else if (r.ends === "hit" || r.ends === "light") {
+      g.beginPath(); g.arc(bx * z, by * z, r.ends === "light" ? 5 : 3, 0, 2 * Math.PI); g.fill();
+    }
+  }
+  g.restore();
+}
+
+function rayLegend() {
+  const kinds = [...new Set((state.rays ?? []).map((r) => r.role))];
+  $("ray-legend").replaceChildren(...kinds.map((k) => {
+    const n = state.rays.filter((r) => r.role === k).length;
+    return swatch(RAY_STYLE[k][0], `${k.replace(/_/g, " ")}${n > 1 ? ` ×${n}` : ""}`);
+  }));
+}
+$("show-rays").addEventListener("change", drawGrid);
+
 $("zoom").addEventListener("input", (e) => { state.zoom = Number(e.target.value); applyZoom(false); });
 
 function pixelAt(e) {
@@ -324,6 +400,8 @@ function pixelAt(e) {
 
 async function trace(u, v) {
   state.selected = [u, v];
+  state.rays = null;
+  rayLegend();
   drawGrid();
   $("trace").textContent = `tracing pixel (${u}, ${v})…`;
   const res = await fetch(`/v1/trace?u=${u}&v=${v}&format=text`, {
@@ -334,7 +412,14 @@ async function trace(u, v) {
   const tree = await fetch(`/v1/trace?u=${u}&v=${v}`, {
     method: "POST", headers: { "content-type": "application/json" }, body: view.state.doc.toString(),
   });
-  if (tree.ok) $("trace-tree").replaceChildren(treeOf("ray tree (JSON)", await tree.json(), true));
+  if (!tree.ok) return;
+  const explanation = await tree.json();
+  $("trace-tree").replaceChildren(treeOf("ray tree (JSON)", explanation, true));
+  // Still the pixel asked about (another click may have come meanwhile).
+  if (state.selected?.[0] !== u || state.selected?.[1] !== v) return;
+  state.rays = explanation.screen ?? null;
+  rayLegend();
+  drawGrid();
 }
 
 /** A JSON value as nested <details>, each object or array folded until opened. */
@@ -490,6 +575,7 @@ $("grade-file").addEventListener("change", async (e) => {
     for (const w of r.worst) {
       const li = el("li");
       const b = el("button", `(${w.u}, ${w.v})`);
+      b.title = `Select pixel (${w.u}, ${w.v}) and show its trace`;
       b.addEventListener("click", () => trace(w.u, w.v));
       li.append(b, ` ${w.pass ? "passes" : w.failures.join(", ")}`);
       ol.append(li);

@@ -95,6 +95,41 @@ await step("click pixel (2, 2) and read lambda = 2 in the trace panel", async ()
   check(await page.locator("#trace-tree .leaf, #trace-tree details details").count() > 0, "the tree has branches");
 });
 
+/** Canvas pixels of the overlay in column `x` between rows `y0` and `y1`, as RGBA. */
+async function column(x, y0, y1) {
+  return page.$eval("#grid", (c, [x, y0, y1]) => {
+    const d = c.getContext("2d").getImageData(x - 1, y0, 3, y1 - y0).data;
+    const out = [];
+    for (let i = 0; i < d.length; i += 4) out.push([d[i], d[i + 1], d[i + 2], d[i + 3]]);
+    return out;
+  }, [x, y0, y1]);
+}
+
+await step("the pixel's rays are drawn over the image", async () => {
+  // Pixel (2, 2)'s primary ray is seen end on, and its shadow ray grazes the ball it
+  // leaves: blocked at once, a red cross on the pixel's centre.
+  await page.locator("#ray-legend", { hasText: "shadow" }).waitFor({ timeout });
+  check(/primary/.test(await page.locator("#ray-legend").textContent()), "the legend names the primary ray");
+  const z = await page.evaluate(() => document.querySelector("#grid").width / 5);
+  const red = await column(Math.round(2.5 * z) + 3, Math.round(2.5 * z) - 5, Math.round(2.5 * z) + 5);
+  check(red.some((px) => px[0] > 200 && px[1] < 120 && px[2] < 120), "no cross where the shadow ray is blocked");
+  // From (3, 2) the shadow ray reaches the light at (0, −4, 0): on screen, straight up.
+  const box = await byId("render-image").boundingBox();
+  await page.mouse.click(box.x + (3.5 / 5) * box.width, box.y + (2.5 / 5) * box.height);
+  await page.waitForFunction(() => document.querySelector("[data-testid=trace-panel]").textContent.startsWith("Pixel (3, 2)"), null, { timeout });
+  await page.waitForFunction(() => window.studio.selected()?.[0] === 3 && document.querySelector("#ray-legend").textContent.includes("shadow"), null, { timeout });
+  const light = (px) => px[3] > 200 && px[0] > 200 && px[1] > 200 && px[2] > 200;
+  const up = await column(Math.round(3.5 * z), Math.round(0.2 * z), Math.round(2.2 * z));
+  check(up.filter(light).length > up.length / 8, `the shadow ray is not drawn above (3, 2): ${up.filter(light).length} of ${up.length}`);
+  const down = await column(Math.round(3.5 * z), Math.round(3.2 * z), Math.round(4.8 * z));
+  check(!down.some(light), "a ray is drawn below the pixel");
+  await page.screenshot({ path: `${shots}/rays-over-the-image.png` });
+  await page.locator("#show-rays").uncheck();
+  const hidden = await column(Math.round(3.5 * z), Math.round(0.2 * z), Math.round(2.2 * z));
+  check(!hidden.some(light), "the rays stay when turned off");
+  await page.locator("#show-rays").check();
+});
+
 await step("a typo in the editor shows the problem at its pointer", async () => {
   const doc = await page.evaluate(() => window.studio.view.state.doc.toString());
   const at = doc.indexOf("focal_length");
@@ -129,6 +164,17 @@ await step("a PNG flipped vertically fails, with its difference image", async ()
   await page.locator("#wipe-at").fill("20");
   const clip = await page.$eval("#wipe-sub", (i) => i.style.clipPath);
   check(clip === "inset(0px 0px 0px 20%)" || clip === "inset(0 0 0 20%)", `the slider clips at ${clip}`);
+});
+
+await step("a worst pixel's entry shows its trace", async () => {
+  const first = page.locator("[data-testid=grade-result] ol button").first();
+  const label = await first.textContent();
+  const [, u, v] = label.match(/\((\d+), (\d+)\)/).map(Number);
+  await first.click();
+  await page.waitForFunction((p) => document.querySelector("[data-testid=trace-panel]").textContent.startsWith(p), `Pixel (${u}, ${v})`, { timeout });
+  await page.locator("#ray-legend", { hasText: "primary" }).waitFor({ timeout });
+  const selected = await page.evaluate(() => window.studio.selected());
+  check(selected?.[0] === u && selected?.[1] === v, `the selected pixel is ${selected}`);
 });
 
 /** The RGBA of canvas `sel` at pixel (x, y). */
