@@ -125,5 +125,5 @@ async fn the_studio_renders_traces_validates_grades_and_cancels_in_a_browser() {
         output.status.success(),
         "the browser test failed:\n{stdout}\n{stderr}"
     );
-    assert!(stdout.contains("12 passed, 0 failed"), "{stdout}");
+    assert!(stdout.contains("13 passed, 0 failed"), "{stdout}");
 }

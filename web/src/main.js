@@ -96,6 +96,8 @@ const view = new EditorView({
     Prec.highest(keymap.of([{ key: "Mod-Enter", run: () => { render(); return true; } }])),
     EditorView.updateListener.of((u) => {
       if (!u.docChanged) return;
+      // Hit data is of the scene it was asked for: another document asks again.
+      if (hits) clearHits();
       clearTimeout(saveTimer);
       saveTimer = setTimeout(() => localStorage.setItem(STORE, view.state.doc.toString()), 300);
     }),
