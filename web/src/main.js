@@ -402,6 +402,9 @@ function pixelAt(e) {
 
 async function trace(u, v) {
   state.selected = [u, v];
+  for (const b of document.querySelectorAll("#grade-result [data-pixel]")) {
+    b.setAttribute("aria-pressed", String(b.dataset.pixel === `${u},${v}`));
+  }
   state.rays = null;
   rayLegend();
   drawGrid();
@@ -578,6 +581,8 @@ $("grade-file").addEventListener("change", async (e) => {
       const li = el("li");
       const b = el("button", `(${w.u}, ${w.v})`);
       b.title = `Select pixel (${w.u}, ${w.v}) and show its trace`;
+      b.dataset.pixel = `${w.u},${w.v}`;
+      b.setAttribute("aria-pressed", "false");
       b.addEventListener("click", () => trace(w.u, w.v));
       li.append(b, ` ${w.pass ? "passes" : w.failures.join(", ")}`);
       ol.append(li);

@@ -250,6 +250,7 @@ await step("a worst pixel's entry shows its trace", async () => {
   await page.locator("#ray-legend", { hasText: "primary" }).waitFor({ timeout });
   const selected = await page.evaluate(() => window.studio.selected());
   check(selected?.[0] === u && selected?.[1] === v, `the selected pixel is ${selected}`);
+  check(await first.getAttribute("aria-pressed") === "true", "the entry does not show it is selected");
 });
 
 /** The RGBA of canvas `sel` at pixel (x, y). */
