@@ -1,9 +1,12 @@
 //! The studio (`GET /`) in a real browser: `web/test/studio.test.mjs` drives Debian's
 //! chromium with playwright-core against the real router on a loopback port, through
-//! every panel (render, trace, validation problems, grading, hit data, cancel). Ignored by
-//! a plain `cargo test`, since it needs chromium and `web/node_modules`:
-//! `bash .ci/test-all` installs both and runs it. Screenshots of each step land in
-//! `studio-shots/` under Cargo's temporary directory for tests (the test prints where).
+//! every panel (the page's streaming PNG decoder first; then render, trace and the
+//! pixel's rays over the image, validation problems, grading and a worst pixel's trace,
+//! the objects, depth and normals views of hit data, a large render drawn band by band
+//! and cancelled). Ignored by a plain `cargo test`, since it needs chromium and
+//! `web/node_modules`: `bash .ci/test-all` installs both and runs it. Screenshots of each
+//! step land in `studio-shots/` under Cargo's temporary directory for tests (the test
+//! prints where).
 //! The page's route and headers are checked without a browser too.
 
 use std::path::Path;
@@ -125,5 +128,5 @@ async fn the_studio_renders_traces_validates_grades_and_cancels_in_a_browser() {
         output.status.success(),
         "the browser test failed:\n{stdout}\n{stderr}"
     );
-    assert!(stdout.contains("10 passed, 0 failed"), "{stdout}");
+    assert!(stdout.contains("13 passed, 0 failed"), "{stdout}");
 }

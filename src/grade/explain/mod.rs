@@ -25,6 +25,7 @@
 
 pub mod model;
 mod recorder;
+pub mod screen;
 pub mod text;
 
 use glam::DVec3;
@@ -262,6 +263,7 @@ pub fn explain(r: &Renderer, u: u32, v: u32, opts: &ExplainOptions) -> Explanati
             rgb8,
             hex: format!("#{:02x}{:02x}{:02x}", rgb8[0], rgb8[1], rgb8[2]),
         },
+        screen: screen::screen_rays(&tree, &r.camera),
         tree,
         truncated: left_out.spent_at.is_some()
             || left_out.rays_not_broken_down > 0

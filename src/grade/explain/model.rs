@@ -50,6 +50,8 @@ pub struct Explanation {
     pub candidates: Candidates,
     /// The ray tree, from the primary ray.
     pub tree: RayNode,
+    /// The tree's rays and shadow rays as lines on the image, for drawing them over it.
+    pub screen: Vec<super::screen::ScreenRay>,
     /// The pixel's colour as rendered.
     pub colour: FinalColour,
     /// Whether anything was left out of the tree (`truncation` says what and where).
