@@ -303,16 +303,26 @@ fn next_wake(jobs: &[Job], servers: &[ServerSlot], per_server: u32) -> Option<In
 
 /// A server base URL, checked: `http://host[:port][/prefix]`, without a trailing slash.
 pub fn server_url(s: &str) -> anyhow::Result<String> {
+    base_url(s, false)
+}
+
+/// A base URL as [`server_url`] checks it, with `https://` allowed too when `tls`: a
+/// course server is often reached across the internet, replicas never are.
+pub fn base_url(s: &str, tls: bool) -> anyhow::Result<String> {
     let s = s.trim();
     let url = reqwest::Url::parse(s).with_context(|| format!("`{s}` is not a URL"))?;
-    if url.scheme() != "http" {
+    let scheme_ok = url.scheme() == "http" || (tls && url.scheme() == "https");
+    if !scheme_ok {
+        if tls {
+            bail!("`{s}`: give the server as http:// or https://");
+        }
         bail!(
             "`{s}`: only http:// servers are supported (raytile speaks plain HTTP to its replicas)"
         );
     }
     if url.host_str().is_none_or(str::is_empty) || url.query().is_some() || url.fragment().is_some()
     {
-        bail!("`{s}`: give a server as http://host:port, with no query or fragment");
+        bail!("`{s}`: give a server as http(s)://host:port, with no query or fragment");
     }
     Ok(url.as_str().trim_end_matches('/').to_owned())
 }
@@ -907,6 +917,18 @@ mod tests {
         );
         for bad in ["https://lb", "lb:8080", "http://lb/?x=1", "", "ftp://x"] {
             assert!(server_url(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn course_servers_may_be_https() {
+        assert_eq!(
+            base_url("https://grader.example.edu/raytile/", true).unwrap(),
+            "https://grader.example.edu/raytile"
+        );
+        assert!(base_url("https://lb", false).is_err());
+        for bad in ["ftp://x", "https://lb/?x=1", "grader:8080"] {
+            assert!(base_url(bad, true).is_err(), "{bad}");
         }
     }
 

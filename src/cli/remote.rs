@@ -11,7 +11,7 @@ use anyhow::Context;
 use reqwest::{Method, RequestBuilder, Response, StatusCode, Url};
 use serde_json::Value;
 
-use super::distributed::server_url;
+use super::distributed::base_url;
 use crate::store::Secret;
 
 /// How long connecting may take before a request gives up.
@@ -26,7 +26,8 @@ const PLAIN_EXCERPT_CHARS: usize = 300;
 /// `--server` and `--token`, for every command that talks to a course server.
 #[derive(Debug, Clone, clap::Args)]
 pub struct ServerArgs {
-    /// The server's base URL: `http://host:port`, or with a path prefix.
+    /// The server's base URL: `http://host:port` or `https://host`, with a path
+    /// prefix if it has one.
     #[arg(long)]
     pub server: String,
     /// The bearer token (an instructor's or a grader's, as the command needs). Prefer
@@ -58,8 +59,11 @@ pub struct Refused {
 impl Remote {
     /// The server `args` names; each request gives up after `timeout`.
     pub fn new(args: &ServerArgs, timeout: Duration) -> anyhow::Result<Remote> {
-        let base = server_url(&args.server)?;
+        let base = base_url(&args.server, true)?;
         let base = Url::parse(&base).with_context(|| format!("`{base}` is not a URL"))?;
+        // reqwest is built without a crypto provider so that ring, which needs only a C
+        // compiler, is the one; installing it a second time is refused, harmlessly.
+        let _ = rustls::crypto::ring::default_provider().install_default();
         let client = reqwest::Client::builder()
             .timeout(timeout)
             .connect_timeout(CONNECT_TIMEOUT.min(timeout))
