@@ -61,6 +61,23 @@ pub enum ApiError {
     /// No such resource (404).
     #[error("{0}")]
     NotFound(String),
+    /// The resource is not at the version the request expects (409).
+    #[error("{0}")]
+    Conflict(String),
+    /// JSON, but not a valid assignment: every problem found (422).
+    #[error("the assignment has {} problem(s)", .0.len())]
+    InvalidAssignment(Vec<Problem>),
+    /// A student made as many submissions to an assignment as the hour allows (429 +
+    /// `Retry-After`: when the oldest of them leaves the window).
+    #[error(
+        "at most {limit} submissions an hour are allowed; the next is possible in {retry_after_seconds} s"
+    )]
+    TooManySubmissions {
+        /// `--submissions-per-hour`.
+        limit: u32,
+        /// Whole seconds until a submission is allowed again.
+        retry_after_seconds: u64,
+    },
     /// The path exists but not with this method (405; axum adds `Allow`).
     #[error("this path does not answer that method")]
     MethodNotAllowed,
@@ -225,6 +242,9 @@ impl ApiError {
             ApiError::Unauthorized(_) => StatusCode::UNAUTHORIZED,
             ApiError::Forbidden(_) => StatusCode::FORBIDDEN,
             ApiError::NotFound(_) => StatusCode::NOT_FOUND,
+            ApiError::Conflict(_) => StatusCode::CONFLICT,
+            ApiError::InvalidAssignment(_) => StatusCode::UNPROCESSABLE_ENTITY,
+            ApiError::TooManySubmissions { .. } => StatusCode::TOO_MANY_REQUESTS,
             ApiError::MethodNotAllowed => StatusCode::METHOD_NOT_ALLOWED,
             ApiError::NotAcceptable { .. } => StatusCode::NOT_ACCEPTABLE,
             ApiError::BodyTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
@@ -254,6 +274,9 @@ impl ApiError {
             ApiError::Unauthorized(_) => ("unauthorized", "Unauthorized"),
             ApiError::Forbidden(_) => ("forbidden", "Forbidden"),
             ApiError::NotFound(_) => ("not-found", "Not found"),
+            ApiError::Conflict(_) => ("conflict", "Conflicting version"),
+            ApiError::InvalidAssignment(_) => ("invalid-assignment", "Invalid assignment"),
+            ApiError::TooManySubmissions { .. } => ("too-many-submissions", "Too many submissions"),
             ApiError::MethodNotAllowed => ("method-not-allowed", "Method not allowed"),
             ApiError::NotAcceptable { .. } => ("not-acceptable", "Not acceptable"),
             ApiError::BodyTooLarge { .. } => ("body-too-large", "Body too large"),
@@ -292,7 +315,13 @@ impl ApiError {
             ApiError::NotAcceptable { supported, .. } => json!({ "supported": supported }),
             ApiError::UnsupportedMediaType { supported, .. } => json!({ "supported": supported }),
             ApiError::BodyTooLarge { limit_bytes } => json!({ "limit_bytes": limit_bytes }),
-            ApiError::InvalidScene(problems) => json!({ "problems": problems }),
+            ApiError::InvalidScene(problems) | ApiError::InvalidAssignment(problems) => {
+                json!({ "problems": problems })
+            }
+            ApiError::TooManySubmissions {
+                limit,
+                retry_after_seconds,
+            } => json!({ "limit": limit, "retry_after_seconds": retry_after_seconds }),
             ApiError::PixelOutside(ExplainError::OutsideImage {
                 u,
                 v,
@@ -379,6 +408,13 @@ impl IntoResponse for ApiError {
         if refused {
             h.insert(header::RETRY_AFTER, HeaderValue::from(RETRY_AFTER_SECONDS));
         }
+        if let ApiError::TooManySubmissions {
+            retry_after_seconds,
+            ..
+        } = &self
+        {
+            h.insert(header::RETRY_AFTER, HeaderValue::from(*retry_after_seconds));
+        }
         if matches!(
             self,
             ApiError::BodyTooLarge { .. }
@@ -431,6 +467,12 @@ mod tests {
             ApiError::Unauthorized("x".into()),
             ApiError::Forbidden("x".into()),
             ApiError::NotFound("x".into()),
+            ApiError::Conflict("x".into()),
+            ApiError::InvalidAssignment(vec![Problem::new("/scenes", "x")]),
+            ApiError::TooManySubmissions {
+                limit: 1,
+                retry_after_seconds: 5,
+            },
             ApiError::MethodNotAllowed,
             ApiError::NotAcceptable {
                 accept: "text/html".into(),
