@@ -6,6 +6,10 @@
 //! was graded ([`super::grade::feedback`]), so no form here can show more. The forms
 //! read nothing of a result that its JSON does not keep, so a stored result read back
 //! ([`read`]) writes every form as it was first written.
+//!
+//! [`not_graded`] writes the same forms' results file for a submission the grading
+//! service did not grade (unreachable, failing, or refusing it): `raytile submit` writes
+//! it so that a student sees a message, never a grader crash.
 
 use std::fmt::Write as _;
 
