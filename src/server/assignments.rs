@@ -99,8 +99,9 @@ impl Course {
         }
     }
 
-    /// The token checks, opening the database the first time.
-    async fn auth(&self, app: &AppState) -> Result<&Auth, ApiError> {
+    /// The token checks, opening the database the first time: what every route on
+    /// assignments (these, and the gradebook's) checks tokens with and reads from.
+    pub async fn auth(&self, app: &AppState) -> Result<&Auth, ApiError> {
         self.auth
             .get_or_try_init(|| async {
                 let store = app
@@ -126,8 +127,26 @@ const HOUR_MS: i64 = 3_600_000;
 const MAX_STUDENT_LEN: usize = 256;
 const MAX_KEY_LEN: usize = 255;
 
-fn db(e: StoreError) -> ApiError {
-    ApiError::Internal(format!("the database failed: {e}"))
+/// A store failure as the client sees it: a busy database (no connection free in
+/// time, SQLite's writer lock not free, PostgreSQL out of connections) is 503 with
+/// `Retry-After`, so that a burst of submissions is answered as a busy server would;
+/// anything else is a fault of ours.
+pub fn store_error(e: StoreError) -> ApiError {
+    let busy = match &e {
+        StoreError::Database(sqlx::Error::PoolTimedOut) => true,
+        // SQLite's SQLITE_BUSY and its extended codes; PostgreSQL's too_many_connections
+        // and cannot_connect_now.
+        StoreError::Database(sqlx::Error::Database(d)) => d
+            .code()
+            .is_some_and(|c| matches!(c.as_ref(), "5" | "261" | "517" | "773" | "53300" | "57P03")),
+        _ => false,
+    };
+    if busy {
+        tracing::warn!(error = %e, "the database is busy");
+        ApiError::DatabaseBusy
+    } else {
+        ApiError::Internal(format!("the database failed: {e}"))
+    }
 }
 
 fn not_found(id: &str) -> ApiError {
@@ -313,7 +332,7 @@ async fn put(
             PutError::Conflict { expected, current } => ApiError::Conflict(format!(
                 "the assignment `{id}` is at revision {current}, not {expected}: fetch it again"
             )),
-            PutError::Store(e) => db(e),
+            PutError::Store(e) => store_error(e),
         })?;
     tracing::info!(token_id = %who.id, assignment = %id, revision = put.revision, "assignment stored");
     let body = serde_json::to_vec(&json!({"id": id, "revision": put.revision}))
@@ -344,18 +363,22 @@ struct Named {
 
 /// `GET /v1/assignments`: every assignment an instructor's token may see, or those a
 /// grader's is scoped to.
-async fn list(State(app): State<AppState>, headers: HeaderMap) -> Result<Response, ApiError> {
+async fn list(
+    State(app): State<AppState>,
+    info: RequestInfo,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
     let auth = app.course.auth(&app).await?;
     let who = auth.principal(&headers).await?;
     let listed: Vec<_> = auth
         .store()
         .live_assignments()
         .await
-        .map_err(db)?
+        .map_err(store_error)?
         .into_iter()
         .filter(|l| sees(&who, &l.id))
         .collect();
-    let deadline = tokio::time::Instant::now() + app.config.deadline();
+    let deadline = tokio::time::Instant::from_std(info.start + app.config.deadline());
     let body = blocking(&app, deadline, move || {
         let items: Vec<Value> = listed
             .iter()
@@ -438,7 +461,7 @@ async fn read(
         .store()
         .assignment(&id)
         .await
-        .map_err(db)?
+        .map_err(store_error)?
         .ok_or_else(|| not_found(&id))?;
     let (body, _memory) = match who.role {
         Role::Instructor => (stored.document.into_bytes(), None),
@@ -474,7 +497,12 @@ async fn delete(
     check_id(&id)?;
     let auth = app.course.auth(&app).await?;
     let who = auth.instructor(&headers).await?;
-    if !auth.store().delete_assignment(&id).await.map_err(db)? {
+    if !auth
+        .store()
+        .delete_assignment(&id)
+        .await
+        .map_err(store_error)?
+    {
         return Err(not_found(&id));
     }
     tracing::info!(token_id = %who.id, assignment = %id, "assignment deleted");
@@ -606,7 +634,7 @@ async fn check_rate(
     let times = store
         .recent_submission_times(id, student, now - HOUR_MS, limit)
         .await
-        .map_err(db)?;
+        .map_err(store_error)?;
     match times.get(limit as usize - 1) {
         Some(&oldest) => Err(rate_limited(app, limit, oldest)),
         None => Ok(()),
@@ -735,10 +763,10 @@ async fn submit(
     let stored = store
         .assignment(&id)
         .await
-        .map_err(db)?
+        .map_err(store_error)?
         .ok_or_else(|| not_found(&id))?;
     if let Some(k) = &key
-        && let Some(done) = store.submission_by_key(&id, k).await.map_err(db)?
+        && let Some(done) = store.submission_by_key(&id, k).await.map_err(store_error)?
     {
         return replay(&app, &id, done, form, deadline).await;
     }
@@ -807,7 +835,7 @@ async fn submit(
         score,
     };
     let recorded = match app.config.submissions_per_hour {
-        0 => match store.record_submission(&new).await.map_err(db)? {
+        0 => match store.record_submission(&new).await.map_err(store_error)? {
             (sub, true) => Recorded::New(sub),
             (sub, false) => Recorded::Existing(sub),
         },
@@ -822,7 +850,7 @@ async fn submit(
             store
                 .record_submission_within(&new, window)
                 .await
-                .map_err(db)?
+                .map_err(store_error)?
         }
     };
     let sub = match recorded {
@@ -880,6 +908,18 @@ mod tests {
                 "{bad:?}"
             );
         }
+    }
+
+    #[test]
+    fn a_busy_database_is_503_and_other_failures_500() {
+        assert_eq!(
+            store_error(StoreError::Database(sqlx::Error::PoolTimedOut)),
+            ApiError::DatabaseBusy
+        );
+        assert!(matches!(
+            store_error(StoreError::Corrupt("x".into())),
+            ApiError::Internal(_)
+        ));
     }
 
     #[test]

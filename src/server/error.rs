@@ -147,6 +147,10 @@ pub enum ApiError {
         /// `--max-connections`.
         limit: usize,
     },
+    /// The database is busy: no connection came free in time, or SQLite's writer lock
+    /// did not (503 + `Retry-After`).
+    #[error("the database is busy")]
+    DatabaseBusy,
     /// The server is shutting down and takes no new work (503 + `Retry-After`).
     #[error("the server is shutting down")]
     ShuttingDown,
@@ -260,6 +264,7 @@ impl ApiError {
             ApiError::Saturated
             | ApiError::MemoryFull
             | ApiError::TooManyConnections { .. }
+            | ApiError::DatabaseBusy
             | ApiError::ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
             ApiError::DeadlineExceeded(_) => StatusCode::GATEWAY_TIMEOUT,
             ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
@@ -291,6 +296,7 @@ impl ApiError {
             ApiError::OverMemory { .. } => ("over-memory", "Too large for the memory budget"),
             ApiError::MemoryFull => ("memory-full", "Memory budget taken"),
             ApiError::TooManyConnections { .. } => ("too-many-connections", "Too many connections"),
+            ApiError::DatabaseBusy => ("database-busy", "Database busy"),
             ApiError::ShuttingDown => ("shutting-down", "Server shutting down"),
             ApiError::DeadlineExceeded(_) => ("deadline-exceeded", "Deadline exceeded"),
             ApiError::Internal(_) => ("internal", "Internal server error"),
@@ -341,7 +347,10 @@ impl ApiError {
                 }
                 m
             }
-            ApiError::Saturated | ApiError::MemoryFull | ApiError::ShuttingDown => {
+            ApiError::Saturated
+            | ApiError::MemoryFull
+            | ApiError::DatabaseBusy
+            | ApiError::ShuttingDown => {
                 json!({ "retry_after_seconds": RETRY_AFTER_SECONDS })
             }
             ApiError::TooManyConnections { limit } => {
@@ -388,6 +397,7 @@ impl IntoResponse for ApiError {
             ApiError::Saturated
                 | ApiError::MemoryFull
                 | ApiError::TooManyConnections { .. }
+                | ApiError::DatabaseBusy
                 | ApiError::ShuttingDown
         );
         if status.is_server_error() && !refused {
@@ -500,6 +510,7 @@ mod tests {
                 problems: Vec::new(),
             },
             ApiError::MemoryFull,
+            ApiError::DatabaseBusy,
             ApiError::ShuttingDown,
             ApiError::DeadlineExceeded(Duration::from_secs(1)),
             ApiError::Internal("secret".into()),

@@ -645,6 +645,23 @@ async fn a_hidden_scene_gives_nothing_away_and_each_scene_fares_on_its_own() {
     );
     assert_eq!(result["score"], 5.0);
 
+    // Nothing asks a submission's answer for more than the report: no worst pixels, no
+    // difference image.
+    for query in ["worst=1000", "output=diff", "inline_diff=true"] {
+        let form = Form::new()
+            .text("student", "s")
+            .part("secret", Part::bytes(black_png()).file_name("secret.png"));
+        let res = authed(
+            client().post(format!("{url}/v1/assignments/{id}/submissions?{query}")),
+            Some(ADMIN),
+        )
+        .multipart(form)
+        .send()
+        .await
+        .expect("an answer");
+        problem(res, 400, "bad-request").await;
+    }
+
     // Requests the route refuses, each as documented.
     let form = Form::new().part("secret", Part::bytes(black_png()).file_name("secret.png"));
     let res = authed(
@@ -788,4 +805,49 @@ async fn submissions_at_once_cannot_pass_the_limit_together_on_postgres() {
     let url = std::env::var("RAYTILE_TEST_DATABASE_URL")
         .expect("RAYTILE_TEST_DATABASE_URL names a PostgreSQL database");
     concurrent_flow(&["--database", &url]).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn grading_is_charged_to_the_memory_budget_before_it_starts() {
+    let dir = tempfile::tempdir().expect("a temp dir");
+    let data = dir.path().join("data");
+    let data = data.to_str().expect("UTF-8");
+    let server = serve(
+        &[
+            "--data-dir",
+            data,
+            "--max-body-bytes",
+            "1048576",
+            "--memory-bytes",
+            "20MiB",
+        ],
+        &[("RAYTILE_ADMIN_TOKEN", ADMIN)],
+    );
+    // Grading a 2000 × 2000 frame takes hundreds of MiB: more than the whole budget.
+    let big = resized(shipped("sphere.json"), 2000, 2000);
+    let doc = assignment("Big", vec![entry("big", big, "image", "visible")]);
+    assert_eq!(put(&server.url, "big", &doc, ADMIN, &[]).await.status, 201);
+    let (answer, _, _) = submit(
+        &server.url,
+        "big",
+        ADMIN,
+        Submit {
+            student: "s",
+            files: vec![("big", "big.png", black_png())],
+            report: None,
+            key: None,
+        },
+    )
+    .await;
+    assert_eq!(answer.status, 422);
+    let body = json_of(&answer);
+    assert_eq!(body["type"], "https://raytile.example/problems/over-memory");
+    assert!(
+        body["needed_bytes"].as_u64().expect("bytes") > 20 << 20,
+        "{body}"
+    );
+    assert_eq!(
+        submissions_in_store(&["--data-dir", data], "big", "s").await,
+        0
+    );
 }
