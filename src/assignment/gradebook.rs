@@ -552,14 +552,22 @@ mod tests {
                 "2",
                 "bob",
                 2,
-                (1.0, "failed", &["flipped_y", "no_shadows", "flipped_y"]),
+                (
+                    1.0,
+                    "failed",
+                    &[
+                        "flipped_vertically",
+                        "shadows_missing",
+                        "flipped_vertically",
+                    ],
+                ),
                 (5.0, "passed"),
             ),
             attempt(
                 "3",
                 "bob",
                 3,
-                (2.0, "failed", &["no_shadows"]),
+                (2.0, "failed", &["shadows_missing"]),
                 (1.0, "failed"),
             ),
             attempt("4", "cy", 4, (0.0, "ungradable", &[]), (5.0, "passed")),
@@ -587,11 +595,11 @@ mod tests {
             sph.diagnoses,
             [
                 DiagnosisCount {
-                    name: "no_shadows".into(),
+                    name: "shadows_missing".into(),
                     count: 2
                 },
                 DiagnosisCount {
-                    name: "flipped_y".into(),
+                    name: "flipped_vertically".into(),
                     count: 1
                 },
             ]

@@ -149,12 +149,12 @@ pub fn store_error(e: StoreError) -> ApiError {
     }
 }
 
-fn not_found(id: &str) -> ApiError {
+pub(crate) fn not_found(id: &str) -> ApiError {
     ApiError::NotFound(format!("there is no assignment `{id}`"))
 }
 
 /// An id is a name that every URL and file system takes as it is.
-fn check_id(id: &str) -> Result<(), ApiError> {
+pub(crate) fn check_id(id: &str) -> Result<(), ApiError> {
     if assignment::valid_name(id) {
         Ok(())
     } else {

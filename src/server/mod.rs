@@ -6,7 +6,8 @@
 //!   runs it until SIGTERM or Ctrl-C, then drains.
 //! - one file per group of routes: [`render`] (`/v1/render`, `/v1/hits`), [`trace`]
 //!   (`/v1/trace`), [`grade`] (`/v1/grade`), [`validate`], [`scenes`], [`health`],
-//!   [`metrics`], [`assignments`] (`/v1/assignments`: push, read, submit);
+//!   [`metrics`], [`assignments`] (`/v1/assignments`: push, read, submit),
+//!   [`gradebook`] (an assignment's submissions, grades and statistics);
 //! - the machinery they share: [`connection`] (the accept loop: connection cap, header
 //!   and idle timeouts), [`extract`] (body, query, `Accept`), [`admission`]
 //!   (render slots and the queue), [`memory`] (the memory budget every request is
@@ -23,6 +24,7 @@ pub mod connection;
 pub mod error;
 pub mod extract;
 pub mod grade;
+pub mod gradebook;
 pub mod health;
 pub mod job;
 pub mod memory;
@@ -149,6 +151,7 @@ pub fn app(state: AppState) -> Router {
         .merge(scene_routes)
         .merge(scenes::router())
         .merge(assignments::router())
+        .merge(gradebook::router())
         .merge(health::router())
         .merge(metrics::router())
         .merge(studio::router())

@@ -21,27 +21,27 @@ const W: u32 = 16;
 const H: u32 = 12;
 
 /// A fresh suffix: the PostgreSQL database outlives a test run.
-fn fresh(prefix: &str) -> String {
+pub(crate) fn fresh(prefix: &str) -> String {
     let nanos = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos());
     format!("{prefix}-{}-{nanos}", std::process::id())
 }
 
-fn small(name: &str) -> Value {
+pub(crate) fn small(name: &str) -> Value {
     resized(shipped(name), W, H)
 }
 
-fn entry(name: &str, scene: Value, grade: &str, visibility: &str) -> Value {
+pub(crate) fn entry(name: &str, scene: Value, grade: &str, visibility: &str) -> Value {
     json!({"name": name, "scene": scene, "points": 5, "grade": grade, "visibility": visibility})
 }
 
-fn assignment(title: &str, scenes: Vec<Value>) -> Value {
+pub(crate) fn assignment(title: &str, scenes: Vec<Value>) -> Value {
     json!({"version": 1, "title": title, "due": "2030-01-01T00:00:00Z", "scenes": scenes})
 }
 
 /// A request with the token, if any.
-fn authed(req: reqwest::RequestBuilder, token: Option<&str>) -> reqwest::RequestBuilder {
+pub(crate) fn authed(req: reqwest::RequestBuilder, token: Option<&str>) -> reqwest::RequestBuilder {
     match token {
         Some(t) => req.header("authorization", format!("Bearer {t}")),
         None => req,
@@ -63,18 +63,18 @@ async fn put(url: &str, id: &str, doc: &Value, token: &str, headers: &[(&str, &s
     answer
 }
 
-async fn get(url: &str, path: &str, token: Option<&str>) -> reqwest::Response {
+pub(crate) async fn get(url: &str, path: &str, token: Option<&str>) -> reqwest::Response {
     authed(client().get(format!("{url}{path}")), token)
         .send()
         .await
         .expect("an answer")
 }
 
-fn json_of(a: &Answer) -> Value {
+pub(crate) fn json_of(a: &Answer) -> Value {
     serde_json::from_slice(&a.body).expect("a JSON body")
 }
 
-fn header(a: &reqwest::Response, name: &str) -> Option<String> {
+pub(crate) fn header(a: &reqwest::Response, name: &str) -> Option<String> {
     a.headers()
         .get(name)
         .and_then(|v| v.to_str().ok())
@@ -82,16 +82,16 @@ fn header(a: &reqwest::Response, name: &str) -> Option<String> {
 }
 
 /// One submission: the student and `(scene, file name, bytes)` parts.
-struct Submit<'a> {
-    student: &'a str,
-    files: Vec<(&'a str, &'a str, Vec<u8>)>,
-    report: Option<&'a str>,
-    key: Option<&'a str>,
+pub(crate) struct Submit<'a> {
+    pub(crate) student: &'a str,
+    pub(crate) files: Vec<(&'a str, &'a str, Vec<u8>)>,
+    pub(crate) report: Option<&'a str>,
+    pub(crate) key: Option<&'a str>,
 }
 
 /// Posts `s` and checks the answer against the document; gives the answer and its
 /// `Location` and `Retry-After`.
-async fn submit(
+pub(crate) async fn submit(
     url: &str,
     id: &str,
     token: &str,
@@ -126,7 +126,7 @@ async fn submit(
 }
 
 /// The scene rendered by the instructor: the submission that earns full marks.
-async fn render_png(url: &str, scene: &Value) -> Vec<u8> {
+pub(crate) async fn render_png(url: &str, scene: &Value) -> Vec<u8> {
     let res = authed(client().post(format!("{url}/v1/render")), Some(ADMIN))
         .header("content-type", "application/json")
         .body(serde_json::to_vec(scene).expect("JSON"))
@@ -137,7 +137,7 @@ async fn render_png(url: &str, scene: &Value) -> Vec<u8> {
     res.bytes().await.expect("a PNG").to_vec()
 }
 
-fn black_png() -> Vec<u8> {
+pub(crate) fn black_png() -> Vec<u8> {
     encode_png(W, H, &vec![0u8; (W * H * 3) as usize])
 }
 

@@ -20,6 +20,9 @@
 //!   finishing a frame while a replica dies (the nginx test is ignored unless asked for:
 //!   `bash .ci/test-all` installs nginx and runs it);
 //! - `grade`: `raytile trace | grade` as an instructor runs them;
+//! - `gradebook`: an assignment's submissions, `grades.csv` and statistics for
+//!   instructors only, and `raytile assignment push | grades`, on SQLite and PostgreSQL
+//!   (PostgreSQL's run is ignored unless asked for);
 //! - `geometry`: shapes under transforms against hand-computed answers;
 //! - `imports`: no two modules import each other, the server never the command line;
 //! - `lecture`: the lecture's worked example;
@@ -55,6 +58,7 @@ mod diagnose;
 mod formats;
 mod geometry;
 mod grade;
+mod gradebook;
 mod imports;
 mod lecture;
 mod lms;
