@@ -202,13 +202,17 @@ pub async fn send_retrying(
         let (failure, retry_after) = match build().timeout(remaining).send().await {
             Ok(res) if !is_retryable(res.status().as_u16()) => {
                 let status = res.status();
-                return match res.bytes().await {
-                    Ok(body) => Answer::Final {
-                        status,
-                        body: body.to_vec(),
-                    },
-                    Err(e) => Answer::GaveUp(transport(e).to_string()),
-                };
+                match res.bytes().await {
+                    Ok(body) => {
+                        return Answer::Final {
+                            status,
+                            body: body.to_vec(),
+                        };
+                    }
+                    // An answer cut off may still be of a recorded submission: the
+                    // retry, under the same key, gets its stored result.
+                    Err(e) => (transport(e).to_string(), None),
+                }
             }
             Ok(res) => {
                 let status = res.status();

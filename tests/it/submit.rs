@@ -246,6 +246,37 @@ fn busy_answers_are_retried_after_retry_after_with_one_idempotency_key() {
 }
 
 #[test]
+fn an_answer_cut_off_is_asked_for_again_under_the_same_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let sub = some_files(dir.path());
+    let cut = "HTTP/1.1 201 Created\r\ncontent-type: application/json\r\ncontent-length: 500\r\nconnection: close\r\n\r\n{\"graded\"".to_owned();
+    let (url, log) = fake_peer(vec![
+        cut,
+        http("200 OK", "", r#"{"score": 1, "scenes": []}"#),
+    ]);
+    let out = dir.path().join("results.json");
+    let (code, stderr) = submit(&[
+        "--server",
+        &url,
+        "--assignment",
+        "a1",
+        "--student",
+        "s1",
+        "-o",
+        out.to_str().unwrap(),
+        sub.to_str().unwrap(),
+    ]);
+    assert_eq!(code, Some(0), "{stderr}");
+    assert_eq!(read_json(&out)["score"], 1);
+    let seen = log.lock().unwrap().clone();
+    assert_eq!(seen.len(), 2);
+    assert_eq!(
+        seen[0].header("idempotency-key"),
+        seen[1].header("idempotency-key")
+    );
+}
+
+#[test]
 fn a_refusal_is_not_retried_and_says_why_and_a_busy_service_past_the_deadline_is_unreachable() {
     let dir = tempfile::tempdir().unwrap();
     let sub = some_files(dir.path());
