@@ -6,6 +6,10 @@
 //! was graded ([`super::grade::feedback`]), so no form here can show more. The forms
 //! read nothing of a result that its JSON does not keep, so a stored result read back
 //! ([`read`]) writes every form as it was first written.
+//!
+//! [`not_graded`] writes the same forms' results file for a submission the grading
+//! service did not grade (unreachable, failing, or refusing it): `raytile submit` writes
+//! it so that a student sees a message, never a grader crash.
 
 use std::fmt::Write as _;
 
@@ -13,7 +17,7 @@ use serde_json::{Value, json};
 
 use super::grade::{AssignmentResult, SceneResult, Status};
 use crate::grade::answer::ReportForm;
-use crate::grade::report::md_block;
+use crate::grade::report::{md_block, prairielearn_ungradable};
 use crate::grade::score::short;
 
 /// The report in `form` as bytes (the difference image has no combined form: JSON).
@@ -176,6 +180,75 @@ pub fn prairielearn(result: &AssignmentResult) -> Value {
     })
 }
 
+/// What a grader's container tells the student when the grading service could not be
+/// reached, answered with its own fault (5xx), or stayed busy past the deadline: nothing
+/// was graded or recorded, and another submission will be.
+pub const UNREACHABLE: &str = "the grading service could not be reached, resubmit";
+
+/// Why a submission has no report from the grading service (`raytile submit`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NotGraded<'a> {
+    /// The service could not be reached, failed (5xx) or stayed busy: resubmitting
+    /// later will do. The detail says what happened, on one line.
+    Unreachable(&'a str),
+    /// The service refused the submission (a 4xx other than 429): resubmitting the same
+    /// will not do. The detail is the service's reason.
+    Refused(&'a str),
+}
+
+impl NotGraded<'_> {
+    /// The sentence shown to the student: for [`NotGraded::Unreachable`] it starts with
+    /// [`UNREACHABLE`].
+    pub fn message(&self) -> String {
+        match self {
+            NotGraded::Unreachable(detail) => format!("{UNREACHABLE} ({detail})"),
+            NotGraded::Refused(detail) => {
+                format!("the grading service refused the submission: {detail}")
+            }
+        }
+    }
+}
+
+/// The results file for a submission that the service did not grade, in `form`: for
+/// Gradescope a score of 0 with one failed test saying why (no `max_score`, which the
+/// service knows and this side does not: Gradescope takes the assignment's); for
+/// PrairieLearn `gradable: false`, so the student loses no attempt; for our JSON
+/// `"graded": false` and the message; for text the message.
+pub fn not_graded(why: NotGraded<'_>, form: ReportForm) -> Vec<u8> {
+    let message = why.message();
+    let value = match form {
+        ReportForm::Text => return format!("Not graded: {message}\n").into_bytes(),
+        ReportForm::Gradescope => {
+            let text = md_block(&format!("Not graded: {message}"));
+            json!({
+                "score": 0.0,
+                "output": text,
+                "output_format": "md",
+                "test_output_format": "md",
+                "test_name_format": "text",
+                "visibility": "visible",
+                "stdout_visibility": "hidden",
+                "tests": [{
+                    "name": "The submission reaches the grading service",
+                    "score": 0.0,
+                    "status": "failed",
+                    "output": text,
+                    "visibility": "visible",
+                }],
+            })
+        }
+        ReportForm::Prairielearn => prairielearn_ungradable(&message),
+        ReportForm::Json | ReportForm::DiffPng => json!({
+            "graded": false,
+            "score": 0.0,
+            "message": message,
+        }),
+    };
+    let mut bytes = serde_json::to_vec_pretty(&value).unwrap_or_default();
+    bytes.push(b'\n');
+    bytes
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -333,5 +406,44 @@ mod tests {
             "{}",
             r.scenes[0].message
         );
+    }
+
+    #[test]
+    fn a_submission_not_graded_still_has_a_results_file_in_every_form() {
+        let why = NotGraded::Unreachable("cannot connect (connection refused)");
+        let parse = |form| -> Value { serde_json::from_slice(&not_graded(why, form)).unwrap() };
+        let gs = parse(ReportForm::Gradescope);
+        assert_eq!(gs["score"], 0.0);
+        assert!(gs.get("max_score").is_none(), "{gs}");
+        assert_eq!(gs["tests"][0]["status"], "failed");
+        assert!(gs["output"].as_str().unwrap().contains(UNREACHABLE), "{gs}");
+        assert!(
+            gs["tests"][0]["output"]
+                .as_str()
+                .unwrap()
+                .contains("connection refused"),
+            "{gs}"
+        );
+        let pl = parse(ReportForm::Prairielearn);
+        assert_eq!(pl["gradable"], false);
+        assert!(
+            pl["message"].as_str().unwrap().contains(UNREACHABLE),
+            "{pl}"
+        );
+        let js = parse(ReportForm::Json);
+        assert_eq!(js["graded"], false);
+        assert_eq!(js["score"], 0.0);
+        let text = String::from_utf8(not_graded(why, ReportForm::Text)).unwrap();
+        assert!(text.starts_with("Not graded: "), "{text}");
+        assert!(text.contains(UNREACHABLE), "{text}");
+
+        // Refused is no reason to resubmit the same: it does not say so.
+        let refused = NotGraded::Refused("unknown assignment `a9`");
+        let pl: Value =
+            serde_json::from_slice(&not_graded(refused, ReportForm::Prairielearn)).unwrap();
+        assert_eq!(pl["gradable"], false);
+        let message = pl["message"].as_str().unwrap();
+        assert!(message.contains("unknown assignment `a9`"), "{message}");
+        assert!(!message.contains(UNREACHABLE), "{message}");
     }
 }

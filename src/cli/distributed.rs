@@ -635,7 +635,7 @@ fn png_limit_bytes(rect: Rect) -> usize {
 }
 
 /// A reqwest error as one line, without the URL (the caller names the server).
-fn transport(e: reqwest::Error) -> Failure {
+pub fn transport(e: reqwest::Error) -> Failure {
     let e = e.without_url();
     let mut root: &dyn std::error::Error = &e;
     while let Some(next) = root.source() {

@@ -10,7 +10,9 @@ mod grade;
 mod input;
 mod local;
 pub mod remote;
+mod scenes;
 mod serve;
+mod submit;
 mod token;
 
 use std::path::PathBuf;
@@ -52,6 +54,11 @@ pub enum Command {
     Healthcheck(serve::HealthcheckArgs),
     /// Create or revoke the bearer tokens that `--require-token` asks for.
     Token(token::TokenArgs),
+    /// Grade files on the grading service and write the results file (a grader's
+    /// container runs it; a results file is written even when the service is down).
+    Submit(submit::SubmitArgs),
+    /// Fetch an assignment's scene documents from the grading service into a folder.
+    Scenes(scenes::ScenesArgs),
 }
 
 /// Options shared by the commands that trace.
@@ -93,6 +100,8 @@ pub fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
         Some(Command::Serve(a)) => serve::serve(a),
         Some(Command::Healthcheck(a)) => serve::healthcheck(a),
         Some(Command::Token(a)) => token::token(a),
+        Some(Command::Submit(a)) => submit::submit(a),
+        Some(Command::Scenes(a)) => scenes::scenes(a),
         // No command: serve, configured by the environment alone.
         None => serve::serve(crate::config::ServeArgs::from_env().map_err(|e| e.exit())?),
     }

@@ -38,6 +38,9 @@
 //!   not read (parked renders, resumed or stopped);
 //! - `server_grade`: `POST /v1/trace` and `POST /v1/grade` as an instructor's scripts
 //!   use them;
+//! - `submit`: `raytile submit` and `raytile scenes` as a grader's container runs them:
+//!   a results file whatever happens, retries with one idempotency key, and whole
+//!   submissions recorded once against a real server, also through a SIGKILL;
 //! - `studio`: the web page at `GET /` in a real browser (ignored unless asked for:
 //!   `bash .ci/test-all` installs chromium and the page's npm packages and runs it);
 //! - `validation`: every class of bad document, with its pointer.
@@ -67,5 +70,6 @@ mod server;
 mod server_grade;
 mod streaming;
 mod studio;
+mod submit;
 mod validation;
 mod wrong_tracer;
