@@ -773,9 +773,13 @@ async fn grade(
         ..defaults
     };
     // Concurrent grades of one scene render its reference once: the others wait here,
-    // off the trace threads, and then find it cached.
-    let wants: Vec<_> = SceneKey::of(&prepared.scene)
-        .map(|k| (k, Kind::of(&prepared.submission)))
+    // off the trace threads, and then find it cached. Hashing a large document takes a
+    // while: not on tokio's threads either.
+    let scene = prepared.scene.clone();
+    let kind = Kind::of(&prepared.submission);
+    let wants: Vec<_> = blocking(&app, deadline, move || SceneKey::of(&scene))
+        .await?
+        .map(|k| (k, kind))
         .into_iter()
         .collect();
     let turn = tokio::time::timeout_at(deadline, app.references.turn(&wants))
