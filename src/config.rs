@@ -159,6 +159,12 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYTILE_ADMIN_TOKEN", hide_env_values = true)]
     pub admin_token: Option<crate::store::Secret>,
 
+    /// Submissions a student may make to one assignment in any hour (0: no limit).
+    /// Each verdict tells something of the reference; counted in the database, so the
+    /// limit holds across replicas.
+    #[arg(long, env = "RAYTILE_SUBMISSIONS_PER_HOUR", default_value_t = DEFAULT_SUBMISSIONS_PER_HOUR)]
+    pub submissions_per_hour: u32,
+
     /// Where tokens, assignments and submissions are kept.
     #[command(flatten)]
     pub store: StoreArgs,
@@ -177,6 +183,11 @@ pub struct StoreArgs {
     #[arg(long, env = "RAYTILE_DATABASE_URL", hide_env_values = true)]
     pub database: Option<crate::store::Secret>,
 }
+
+/// Submissions a student may make to one assignment in an hour, unless told otherwise:
+/// enough to fix and resubmit through a session, few enough that the verdicts cannot
+/// be used to search for the reference.
+pub const DEFAULT_SUBMISSIONS_PER_HOUR: u32 = 30;
 
 /// The data folder unless told otherwise.
 pub const DEFAULT_DATA_DIR: &str = "./raytile-data";
@@ -228,6 +239,7 @@ impl Default for ServeArgs {
             diagnosis_max_pixels: crate::grade::diagnose::DEFAULT_MAX_PIXELS,
             require_token: false,
             admin_token: None,
+            submissions_per_hour: DEFAULT_SUBMISSIONS_PER_HOUR,
             store: StoreArgs::default(),
         }
     }

@@ -2,8 +2,13 @@
 //! combined [`AssignmentResult`]. A missing scene scores zero, an unreadable file makes
 //! its scene ungradable and nothing more; what a hidden scene's result may show is
 //! decided in one place, [`feedback`].
+//!
+//! A result is stored as its JSON and read back ([`AssignmentResult`] deserializes) to
+//! answer a retried submission in another report form: everything the forms show is in
+//! the JSON, each shown part's report also as its text, so the full reports themselves
+//! need not be read back.
 
-use serde::Serialize;
+use serde::{Deserialize, Deserializer, Serialize};
 
 use super::{AssignedScene, Assignment, Visibility};
 use crate::grade::{self, GradeOptions, Hint, Report, Submission};
@@ -24,7 +29,7 @@ pub struct SubmittedFile {
 }
 
 /// How a scene fared.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Status {
     /// Every part passes.
@@ -38,10 +43,11 @@ pub enum Status {
 }
 
 /// One graded part of a scene (its image or its hit data), as much as may be shown.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PartResult {
     /// `"image"` or `"hits"`.
-    pub kind: &'static str,
+    #[serde(deserialize_with = "kind_name")]
+    pub kind: StaticName,
     /// The file graded, if one was given.
     pub file: Option<String>,
     /// How it fared.
@@ -50,13 +56,43 @@ pub struct PartResult {
     pub score: f64,
     /// The verdict, or why it could not be graded.
     pub message: String,
-    /// The full report, only where the scene's feedback may show it.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    /// The full report, only where the scene's feedback may show it (not read back).
+    #[serde(skip_serializing_if = "Option::is_none", skip_deserializing)]
     pub report: Option<Report>,
+    /// The full report as text ([`crate::grade::report::to_text`]), exactly where
+    /// `report` is shown: what the text and grader forms print of it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub report_text: Option<String>,
+}
+
+/// A name from a fixed list. Spelled through an alias because serde's derive takes a
+/// field written `&'static str` as borrowed from the input, which a result read from a
+/// `String` cannot be; these are read by [`static_name`] instead.
+pub type StaticName = &'static str;
+
+/// One of `names` as read back, as the `&'static str` it was written from.
+fn static_name<'de, D: Deserializer<'de>>(
+    d: D,
+    names: &'static [&'static str],
+) -> Result<&'static str, D::Error> {
+    let s = String::deserialize(d)?;
+    names
+        .iter()
+        .find(|n| **n == s)
+        .copied()
+        .ok_or_else(|| serde::de::Error::unknown_variant(&s, names))
+}
+
+fn kind_name<'de, D: Deserializer<'de>>(d: D) -> Result<&'static str, D::Error> {
+    static_name(d, &["image", "hits"])
+}
+
+fn visibility_name<'de, D: Deserializer<'de>>(d: D) -> Result<&'static str, D::Error> {
+    static_name(d, &["visible", "hidden"])
 }
 
 /// One scene's result.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SceneResult {
     /// The scene's name.
     pub name: String,
@@ -67,24 +103,25 @@ pub struct SceneResult {
     /// How it fared: the worst of its parts.
     pub status: Status,
     /// `"visible"` or `"hidden"`.
-    pub visibility: &'static str,
+    #[serde(deserialize_with = "visibility_name")]
+    pub visibility: StaticName,
     /// Whether the full feedback is shown (visible scenes, and hidden ones whose
     /// feedback is allowed after the due date once it has passed).
     pub feedback: bool,
     /// A hidden scene whose full feedback is allowed once the due date has passed.
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub after_due_date: bool,
     /// The verdict in one sentence.
     pub message: String,
     /// The catalogue names of the mistakes diagnosed, when the feedback is shown.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub diagnosis: Vec<String>,
     /// Each part.
     pub parts: Vec<PartResult>,
 }
 
 /// A whole submission's result.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct AssignmentResult {
     /// The assignment's title.
     pub title: String,
@@ -97,7 +134,7 @@ pub struct AssignmentResult {
     /// Each scene in the assignment's order.
     pub scenes: Vec<SceneResult>,
     /// Files that name no scene of the assignment (ignored).
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub ignored: Vec<String>,
 }
 
@@ -137,6 +174,7 @@ pub fn feedback(kind: &'static str, file: String, report: Report, reveal: bool) 
             status,
             score,
             message: report.summary.clone(),
+            report_text: Some(grade::report::to_text(&report)),
             report: Some(report),
         };
     }
@@ -151,6 +189,7 @@ pub fn feedback(kind: &'static str, file: String, report: Report, reveal: bool) 
             grade::score::short(score)
         ),
         report: None,
+        report_text: None,
     }
 }
 
@@ -199,6 +238,7 @@ fn ungradable(kind: &'static str, file: Option<String>, message: String) -> Part
         score: 0.0,
         message,
         report: None,
+        report_text: None,
     }
 }
 
@@ -274,6 +314,7 @@ fn grade_scene(
                     s.name, s.name
                 ),
                 report: None,
+                report_text: None,
             },
         };
         parts.push(part);

@@ -3,7 +3,9 @@
 //! `visibility` from the scene's) and PrairieLearn's results (a test per scene, hidden
 //! scenes' tests marked `hidden`). Each scene's own report text is
 //! [`crate::grade::report::to_text`]'s; what a hidden scene shows was decided when it
-//! was graded ([`super::grade::feedback`]), so no form here can show more.
+//! was graded ([`super::grade::feedback`]), so no form here can show more. The forms
+//! read nothing of a result that its JSON does not keep, so a stored result read back
+//! ([`read`]) writes every form as it was first written.
 
 use std::fmt::Write as _;
 
@@ -11,7 +13,7 @@ use serde_json::{Value, json};
 
 use super::grade::{AssignmentResult, SceneResult, Status};
 use crate::grade::answer::ReportForm;
-use crate::grade::report::{md_block, to_text};
+use crate::grade::report::md_block;
 use crate::grade::score::short;
 
 /// The report in `form` as bytes (the difference image has no combined form: JSON).
@@ -25,6 +27,12 @@ pub fn write(result: &AssignmentResult, form: ReportForm) -> Vec<u8> {
     let mut bytes = serde_json::to_vec_pretty(&value).unwrap_or_default();
     bytes.push(b'\n');
     bytes
+}
+
+/// A result stored as its JSON form, read back to write it in another form (the JSON
+/// form is the stored text itself: the full reports are not read back).
+pub fn read(json: &str) -> Result<AssignmentResult, serde_json::Error> {
+    serde_json::from_str(json)
 }
 
 /// Our JSON: the result as it is.
@@ -56,8 +64,8 @@ fn scene_text(s: &SceneResult) -> String {
     for p in &s.parts {
         let file = p.file.as_deref().unwrap_or("no file");
         let _ = writeln!(o, "  {} ({file}): {}", p.kind, p.message);
-        if let Some(r) = &p.report {
-            for line in to_text(r).lines() {
+        if let Some(text) = &p.report_text {
+            for line in text.lines() {
                 let _ = writeln!(o, "    {line}");
             }
         }
@@ -276,6 +284,29 @@ mod tests {
         assert!(lit.iter().any(|v| f[1].contains(v.as_str())));
         assert_eq!(gradescope(&r)["tests"][0]["visibility"], "visible");
         assert_eq!(gradescope(&r)["max_score"], 3.0);
+    }
+
+    #[test]
+    fn a_result_read_back_writes_every_form_as_before() {
+        for (visibility, now) in [(r#""visible""#, 0), (r#""hidden""#, 0)] {
+            let a = assignment(visibility, "2026-01-01T00:00:00Z");
+            let (r, _) = graded(&a, now);
+            let stored = String::from_utf8(write(&r, ReportForm::Json)).unwrap();
+            let back = read(&stored).unwrap();
+            // The JSON form is its stored text itself; the others come from it.
+            for form in [
+                ReportForm::Text,
+                ReportForm::Gradescope,
+                ReportForm::Prairielearn,
+            ] {
+                assert_eq!(
+                    String::from_utf8(write(&back, form)).unwrap(),
+                    String::from_utf8(write(&r, form)).unwrap(),
+                    "{visibility} {form:?}"
+                );
+            }
+        }
+        assert!(read(r#"{"title": "t"}"#).is_err());
     }
 
     #[test]

@@ -109,6 +109,32 @@ impl Kind {
     }
 }
 
+impl Kind {
+    /// The reference a graded part names (`"image"`, `"hits"`), for an 8-bit image.
+    pub fn of_part(part: &str) -> Option<Kind> {
+        match part {
+            "image" => Some(Kind::Image),
+            "hits" => Some(Kind::Hits),
+            _ => None,
+        }
+    }
+}
+
+/// What grading `scenes` (each with the parts it grades, as [`Kind::of_part`] reads
+/// them) wants of the cache, for [`ReferenceCache::turn`]. Hashes every document: call
+/// it off the async threads.
+pub fn wants(scenes: &[(Arc<Scene>, &[&str])]) -> Vec<(SceneKey, Kind)> {
+    scenes
+        .iter()
+        .filter_map(|(scene, parts)| Some((SceneKey::of(scene)?, *parts)))
+        .flat_map(|(key, parts)| {
+            parts
+                .iter()
+                .filter_map(move |p| Some((key, Kind::of_part(p)?)))
+        })
+        .collect()
+}
+
 /// A reference the cache can keep: which kind it is and what it takes in memory.
 pub trait Cached: Any + Send + Sync {
     /// Its kind.

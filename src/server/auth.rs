@@ -79,6 +79,23 @@ impl Auth {
     }
 }
 
+/// Lets `p` at assignment `id`'s scenes and submissions: an instructor, or a grader
+/// scoped to it (or to every assignment); 403 for a grader of another assignment.
+pub fn scoped_to(p: &Principal, id: &str) -> Result<(), ApiError> {
+    match (p.role, p.assignment.as_deref()) {
+        (Role::Instructor, _) | (Role::Grader, None) => Ok(()),
+        (Role::Grader, Some(a)) if a == id => Ok(()),
+        (Role::Grader, Some(_)) => Err(ApiError::Forbidden(
+            "this grader's token is scoped to another assignment".into(),
+        )),
+    }
+}
+
+/// Whether `p` sees assignment `id` in a listing (as [`scoped_to`] lets it at it).
+pub fn sees(p: &Principal, id: &str) -> bool {
+    scoped_to(p, id).is_ok()
+}
+
 /// The token of `Authorization: Bearer <token>` (the scheme in any case, RFC 9110).
 fn bearer(headers: &HeaderMap) -> Result<&str, ApiError> {
     let missing = || {

@@ -61,6 +61,23 @@ pub enum ApiError {
     /// No such resource (404).
     #[error("{0}")]
     NotFound(String),
+    /// The resource is not at the version the request expects (409).
+    #[error("{0}")]
+    Conflict(String),
+    /// JSON, but not a valid assignment: every problem found (422).
+    #[error("the assignment has {} problem(s)", .0.len())]
+    InvalidAssignment(Vec<Problem>),
+    /// A student made as many submissions to an assignment as the hour allows (429 +
+    /// `Retry-After`: when the oldest of them leaves the window).
+    #[error(
+        "at most {limit} submissions an hour are allowed; the next is possible in {retry_after_seconds} s"
+    )]
+    TooManySubmissions {
+        /// `--submissions-per-hour`.
+        limit: u32,
+        /// Whole seconds until a submission is allowed again.
+        retry_after_seconds: u64,
+    },
     /// The path exists but not with this method (405; axum adds `Allow`).
     #[error("this path does not answer that method")]
     MethodNotAllowed,
@@ -130,6 +147,10 @@ pub enum ApiError {
         /// `--max-connections`.
         limit: usize,
     },
+    /// The database is busy: no connection came free in time, or SQLite's writer lock
+    /// did not (503 + `Retry-After`).
+    #[error("the database is busy")]
+    DatabaseBusy,
     /// The server is shutting down and takes no new work (503 + `Retry-After`).
     #[error("the server is shutting down")]
     ShuttingDown,
@@ -225,6 +246,9 @@ impl ApiError {
             ApiError::Unauthorized(_) => StatusCode::UNAUTHORIZED,
             ApiError::Forbidden(_) => StatusCode::FORBIDDEN,
             ApiError::NotFound(_) => StatusCode::NOT_FOUND,
+            ApiError::Conflict(_) => StatusCode::CONFLICT,
+            ApiError::InvalidAssignment(_) => StatusCode::UNPROCESSABLE_ENTITY,
+            ApiError::TooManySubmissions { .. } => StatusCode::TOO_MANY_REQUESTS,
             ApiError::MethodNotAllowed => StatusCode::METHOD_NOT_ALLOWED,
             ApiError::NotAcceptable { .. } => StatusCode::NOT_ACCEPTABLE,
             ApiError::BodyTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
@@ -240,6 +264,7 @@ impl ApiError {
             ApiError::Saturated
             | ApiError::MemoryFull
             | ApiError::TooManyConnections { .. }
+            | ApiError::DatabaseBusy
             | ApiError::ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
             ApiError::DeadlineExceeded(_) => StatusCode::GATEWAY_TIMEOUT,
             ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
@@ -254,6 +279,9 @@ impl ApiError {
             ApiError::Unauthorized(_) => ("unauthorized", "Unauthorized"),
             ApiError::Forbidden(_) => ("forbidden", "Forbidden"),
             ApiError::NotFound(_) => ("not-found", "Not found"),
+            ApiError::Conflict(_) => ("conflict", "Conflicting version"),
+            ApiError::InvalidAssignment(_) => ("invalid-assignment", "Invalid assignment"),
+            ApiError::TooManySubmissions { .. } => ("too-many-submissions", "Too many submissions"),
             ApiError::MethodNotAllowed => ("method-not-allowed", "Method not allowed"),
             ApiError::NotAcceptable { .. } => ("not-acceptable", "Not acceptable"),
             ApiError::BodyTooLarge { .. } => ("body-too-large", "Body too large"),
@@ -268,6 +296,7 @@ impl ApiError {
             ApiError::OverMemory { .. } => ("over-memory", "Too large for the memory budget"),
             ApiError::MemoryFull => ("memory-full", "Memory budget taken"),
             ApiError::TooManyConnections { .. } => ("too-many-connections", "Too many connections"),
+            ApiError::DatabaseBusy => ("database-busy", "Database busy"),
             ApiError::ShuttingDown => ("shutting-down", "Server shutting down"),
             ApiError::DeadlineExceeded(_) => ("deadline-exceeded", "Deadline exceeded"),
             ApiError::Internal(_) => ("internal", "Internal server error"),
@@ -292,7 +321,13 @@ impl ApiError {
             ApiError::NotAcceptable { supported, .. } => json!({ "supported": supported }),
             ApiError::UnsupportedMediaType { supported, .. } => json!({ "supported": supported }),
             ApiError::BodyTooLarge { limit_bytes } => json!({ "limit_bytes": limit_bytes }),
-            ApiError::InvalidScene(problems) => json!({ "problems": problems }),
+            ApiError::InvalidScene(problems) | ApiError::InvalidAssignment(problems) => {
+                json!({ "problems": problems })
+            }
+            ApiError::TooManySubmissions {
+                limit,
+                retry_after_seconds,
+            } => json!({ "limit": limit, "retry_after_seconds": retry_after_seconds }),
             ApiError::PixelOutside(ExplainError::OutsideImage {
                 u,
                 v,
@@ -312,7 +347,10 @@ impl ApiError {
                 }
                 m
             }
-            ApiError::Saturated | ApiError::MemoryFull | ApiError::ShuttingDown => {
+            ApiError::Saturated
+            | ApiError::MemoryFull
+            | ApiError::DatabaseBusy
+            | ApiError::ShuttingDown => {
                 json!({ "retry_after_seconds": RETRY_AFTER_SECONDS })
             }
             ApiError::TooManyConnections { limit } => {
@@ -359,6 +397,7 @@ impl IntoResponse for ApiError {
             ApiError::Saturated
                 | ApiError::MemoryFull
                 | ApiError::TooManyConnections { .. }
+                | ApiError::DatabaseBusy
                 | ApiError::ShuttingDown
         );
         if status.is_server_error() && !refused {
@@ -378,6 +417,13 @@ impl IntoResponse for ApiError {
         }
         if refused {
             h.insert(header::RETRY_AFTER, HeaderValue::from(RETRY_AFTER_SECONDS));
+        }
+        if let ApiError::TooManySubmissions {
+            retry_after_seconds,
+            ..
+        } = &self
+        {
+            h.insert(header::RETRY_AFTER, HeaderValue::from(*retry_after_seconds));
         }
         if matches!(
             self,
@@ -431,6 +477,12 @@ mod tests {
             ApiError::Unauthorized("x".into()),
             ApiError::Forbidden("x".into()),
             ApiError::NotFound("x".into()),
+            ApiError::Conflict("x".into()),
+            ApiError::InvalidAssignment(vec![Problem::new("/scenes", "x")]),
+            ApiError::TooManySubmissions {
+                limit: 1,
+                retry_after_seconds: 5,
+            },
             ApiError::MethodNotAllowed,
             ApiError::NotAcceptable {
                 accept: "text/html".into(),
@@ -458,6 +510,7 @@ mod tests {
                 problems: Vec::new(),
             },
             ApiError::MemoryFull,
+            ApiError::DatabaseBusy,
             ApiError::ShuttingDown,
             ApiError::DeadlineExceeded(Duration::from_secs(1)),
             ApiError::Internal("secret".into()),

@@ -404,7 +404,7 @@ fn once_part<T>(slot: &mut Option<T>, name: &str, value: T) -> Result<(), ApiErr
 /// The submission's form from its part: the media type when it names one (`image/png`,
 /// `text/csv`, …), else the file name's extension (`curl -F` sends most files as
 /// `application/octet-stream`), else [`Hint::Auto`] (told from the content).
-fn part_hint(media_type: Option<&str>, file_name: Option<&str>) -> Hint {
+pub(super) fn part_hint(media_type: Option<&str>, file_name: Option<&str>) -> Hint {
     match media_type.map(Hint::from_media_type) {
         Some(h) if h != Hint::Auto => h,
         _ => file_name.map_or(Hint::Auto, |n| Hint::from_path(std::path::Path::new(n))),
@@ -547,7 +547,7 @@ fn split(sent: GradeForm, query: &GradeQuery) -> Result<Split, ApiError> {
 
 /// The family of the submission for the estimate of decoding, as its reader will tell
 /// it: an image signature first, then the hint (`None`: told from the bytes).
-fn family(bytes: &[u8], hint: Hint) -> Option<Family> {
+pub(super) fn family(bytes: &[u8], hint: Hint) -> Option<Family> {
     if let Some(f) = RasterFormat::sniff(bytes) {
         return Some(Family::Image(f));
     }
@@ -564,14 +564,19 @@ fn family(bytes: &[u8], hint: Hint) -> Option<Family> {
 /// another size, or one whose header cannot be read: its reader refuses it from the
 /// header, with the grader's own error.
 fn decoding_of(s: &Split, scene: &Scene) -> Decoding {
+    decoding_for(&s.submission, s.hint, scene)
+}
+
+/// [`decoding_of`] for a submission's bytes and form.
+pub(super) fn decoding_for(submission: &[u8], hint: Hint, scene: &Scene) -> Decoding {
     let nothing = Decoding { peak: 0, held: 0 };
-    let family = family(&s.submission, s.hint);
+    let family = family(submission, hint);
     if family == Some(Family::Image(RasterFormat::Png))
-        && decoding::png_size(&s.submission).ok() != Some((scene.width, scene.height))
+        && decoding::png_size(submission).ok() != Some((scene.width, scene.height))
     {
         return nothing;
     }
-    decoding::submission(&s.submission, family, (scene.width, scene.height)).unwrap_or(nothing)
+    decoding::submission(submission, family, (scene.width, scene.height)).unwrap_or(nothing)
 }
 
 /// The whole of grading, charged step by step to the request's `memory` before each

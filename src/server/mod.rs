@@ -6,7 +6,7 @@
 //!   runs it until SIGTERM or Ctrl-C, then drains.
 //! - one file per group of routes: [`render`] (`/v1/render`, `/v1/hits`), [`trace`]
 //!   (`/v1/trace`), [`grade`] (`/v1/grade`), [`validate`], [`scenes`], [`health`],
-//!   [`metrics`];
+//!   [`metrics`], [`assignments`] (`/v1/assignments`: push, read, submit);
 //! - the machinery they share: [`connection`] (the accept loop: connection cap, header
 //!   and idle timeouts), [`extract`] (body, query, `Accept`), [`admission`]
 //!   (render slots and the queue), [`memory`] (the memory budget every request is
@@ -17,6 +17,7 @@
 //!   a graceful stop), [`auth`] (bearer tokens under `--require-token`).
 
 pub mod admission;
+pub mod assignments;
 pub mod auth;
 pub mod connection;
 pub mod error;
@@ -83,6 +84,8 @@ pub struct Shared {
     /// The references of recently graded scenes, `--reference-cache-bytes`, kept in the
     /// memory budget.
     pub references: Arc<ReferenceCache>,
+    /// The assignment routes' token checks, on the store opened when first needed.
+    pub course: assignments::Course,
 }
 
 impl Deref for AppState {
@@ -131,6 +134,7 @@ impl AppState {
             pool: Scheduler::new(pool),
             metrics,
             shutdown: Shutdown::default(),
+            course: assignments::Course::new(auth.clone()),
             auth,
         })))
     }
@@ -156,6 +160,7 @@ pub fn app(state: AppState) -> Router {
     Router::new()
         .merge(scene_routes)
         .merge(scenes::router())
+        .merge(assignments::router())
         .merge(health::router())
         .merge(metrics::router())
         .merge(studio::router())

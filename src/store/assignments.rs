@@ -15,6 +15,24 @@ pub struct StoredAssignment {
     pub document: String,
 }
 
+/// What putting an assignment did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Put {
+    /// The revision the document was stored as.
+    pub revision: i64,
+    /// Whether there was no live assignment with this id before (created, not replaced).
+    pub created: bool,
+}
+
+/// A live assignment as listed: its id and its latest revision.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ListedAssignment {
+    /// The id.
+    pub id: String,
+    /// The latest revision and its document.
+    pub stored: StoredAssignment,
+}
+
 /// Why an assignment could not be put.
 #[derive(Debug, thiserror::Error)]
 pub enum PutError {
@@ -46,6 +64,31 @@ pub struct NewSubmission<'a> {
     pub result: &'a str,
     /// The score.
     pub score: f64,
+}
+
+/// A limit on one student's submissions to one assignment: at most `limit` recorded
+/// after `since_ms`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Window {
+    /// Submissions allowed in the window.
+    pub limit: u32,
+    /// Where the window starts (ms since the epoch).
+    pub since_ms: i64,
+}
+
+/// What recording a submission within a [`Window`] did.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Recorded {
+    /// Recorded now.
+    New(Submission),
+    /// Recorded before under the same idempotency key: that one.
+    Existing(Submission),
+    /// Not recorded: the window holds `limit` submissions already.
+    Limited {
+        /// When the oldest of the newest `limit` was recorded: the window frees a place
+        /// when it leaves.
+        oldest_ms: i64,
+    },
 }
 
 /// A recorded submission.
@@ -83,14 +126,14 @@ impl Store {
         })
     }
 
-    /// Stores `document` as the next revision of `id` and returns that revision. With
-    /// `expected`, only if the live revision is that one (0: none yet), else a conflict.
+    /// Stores `document` as the next revision of `id` and says which. With `expected`,
+    /// only if the live revision is that one (0: none yet), else a conflict.
     pub async fn put_assignment(
         &self,
         id: &str,
         document: &str,
         expected: Option<i64>,
-    ) -> Result<i64, PutError> {
+    ) -> Result<Put, PutError> {
         let current = self.current_revision(id).await?;
         if let Some(expected) = expected
             && expected != current
@@ -115,7 +158,10 @@ impl Store {
         .execute(self.pool())
         .await;
         match inserted {
-            Ok(_) => Ok(revision),
+            Ok(_) => Ok(Put {
+                revision,
+                created: current == 0,
+            }),
             // Another writer took this revision first (the primary key decides).
             Err(sqlx::Error::Database(e)) if e.is_unique_violation() => Err(PutError::Conflict {
                 expected: expected.unwrap_or(current),
@@ -144,16 +190,81 @@ impl Store {
         }))
     }
 
-    /// Deletes assignment `id` (its submissions stay); whether it existed.
+    /// Every live assignment at its latest revision, by id.
+    pub async fn live_assignments(&self) -> Result<Vec<ListedAssignment>, StoreError> {
+        let rows = sqlx::query(
+            "SELECT a.id, a.revision, a.document FROM assignments a \
+             WHERE a.deleted_ms IS NULL \
+             AND a.revision = (SELECT MAX(b.revision) FROM assignments b WHERE b.id = a.id) \
+             ORDER BY a.id",
+        )
+        .fetch_all(self.pool())
+        .await?;
+        rows.iter()
+            .map(|r| {
+                Ok(ListedAssignment {
+                    id: r.try_get("id")?,
+                    stored: StoredAssignment {
+                        revision: r.try_get("revision")?,
+                        document: r.try_get("document")?,
+                    },
+                })
+            })
+            .collect()
+    }
+
+    /// Deletes assignment `id` (its submissions stay) and revokes the grader tokens
+    /// scoped to it, in one transaction, so that they do not come back to life if the
+    /// id is used again; whether it existed.
     pub async fn delete_assignment(&self, id: &str) -> Result<bool, StoreError> {
+        let now = now_ms();
+        let mut tx = self.pool().begin().await?;
         let done = sqlx::query(
             "UPDATE assignments SET deleted_ms = $1 WHERE id = $2 AND deleted_ms IS NULL",
         )
-        .bind(now_ms())
+        .bind(now)
         .bind(id)
-        .execute(self.pool())
+        .execute(&mut *tx)
         .await?;
-        Ok(done.rows_affected() > 0)
+        let existed = done.rows_affected() > 0;
+        if existed {
+            sqlx::query(
+                "UPDATE tokens SET revoked_ms = $1 \
+                 WHERE role = 'grader' AND assignment_id = $2 AND revoked_ms IS NULL",
+            )
+            .bind(now)
+            .bind(id)
+            .execute(&mut *tx)
+            .await?;
+        }
+        tx.commit().await?;
+        Ok(existed)
+    }
+
+    /// When `student`'s most recent submissions to `assignment` since `since_ms` were
+    /// recorded (ms since the epoch), newest first, at most `limit` of them: what a
+    /// rate limit counts, from the store, so that every replica counts the same.
+    pub async fn recent_submission_times(
+        &self,
+        assignment: &str,
+        student: &str,
+        since_ms: i64,
+        limit: u32,
+    ) -> Result<Vec<i64>, StoreError> {
+        let rows = sqlx::query(
+            "SELECT submitted_ms FROM submissions \
+             WHERE assignment_id = $1 AND student = $2 AND submitted_ms > $3 \
+             ORDER BY submitted_ms DESC LIMIT $4",
+        )
+        .bind(assignment)
+        .bind(student)
+        .bind(since_ms)
+        .bind(i64::from(limit))
+        .fetch_all(self.pool())
+        .await?;
+        rows.iter()
+            .map(|r| r.try_get("submitted_ms").map_err(StoreError::from))
+            .collect()
     }
 
     /// Records a submission, committed when this returns. A second one with the same
@@ -207,7 +318,83 @@ impl Store {
         }
     }
 
-    async fn submission_by_key(
+    /// [`Store::record_submission`] within `window`: the count and the insert are one
+    /// statement (SQLite runs statements one at a time; on PostgreSQL a transaction
+    /// lock per student and assignment orders them), so concurrent submissions cannot
+    /// together pass the limit.
+    pub async fn record_submission_within(
+        &self,
+        s: &NewSubmission<'_>,
+        window: Window,
+    ) -> Result<Recorded, StoreError> {
+        if let Some(key) = s.idempotency_key
+            && let Some(existing) = self.submission_by_key(s.assignment, key).await?
+        {
+            return Ok(Recorded::Existing(existing));
+        }
+        let id = hex::encode(random_bytes::<16>()?);
+        let submitted_ms = now_ms();
+        let mut tx = self.pool().begin().await?;
+        if self.backend() == super::Backend::Postgres {
+            sqlx::query("SELECT pg_advisory_xact_lock(hashtext($1))")
+                .bind(format!("submissions\n{}\n{}", s.assignment, s.student))
+                .execute(&mut *tx)
+                .await?;
+        }
+        let inserted = sqlx::query(
+            "INSERT INTO submissions (id, assignment_id, revision, student, idempotency_key, \
+             submitted_ms, result, score) \
+             SELECT $1, $2, $3, $4, $5, $6, $7, $8 \
+             WHERE (SELECT COUNT(*) FROM submissions \
+                    WHERE assignment_id = $2 AND student = $4 AND submitted_ms > $9) < $10",
+        )
+        .bind(&id)
+        .bind(s.assignment)
+        .bind(s.revision)
+        .bind(s.student)
+        .bind(s.idempotency_key)
+        .bind(submitted_ms)
+        .bind(s.result)
+        .bind(s.score)
+        .bind(window.since_ms)
+        .bind(i64::from(window.limit))
+        .execute(&mut *tx)
+        .await;
+        match (inserted, s.idempotency_key) {
+            (Ok(done), _) if done.rows_affected() > 0 => {
+                tx.commit().await?;
+                Ok(Recorded::New(Submission {
+                    id,
+                    revision: s.revision,
+                    student: s.student.to_owned(),
+                    submitted_ms,
+                    result: s.result.to_owned(),
+                    score: s.score,
+                }))
+            }
+            (Ok(_), _) => {
+                tx.rollback().await?;
+                let times = self
+                    .recent_submission_times(s.assignment, s.student, window.since_ms, window.limit)
+                    .await?;
+                Ok(Recorded::Limited {
+                    oldest_ms: times.last().copied().unwrap_or(submitted_ms),
+                })
+            }
+            // A concurrent retry with the same key committed first: return its row.
+            (Err(sqlx::Error::Database(e)), Some(key)) if e.is_unique_violation() => {
+                tx.rollback().await?;
+                let existing = self.submission_by_key(s.assignment, key).await?;
+                existing
+                    .map(Recorded::Existing)
+                    .ok_or_else(|| StoreError::Corrupt("a conflicting key without its row".into()))
+            }
+            (Err(e), _) => Err(e.into()),
+        }
+    }
+
+    /// The submission recorded for `assignment` under the idempotency key `key`.
+    pub async fn submission_by_key(
         &self,
         assignment: &str,
         key: &str,
@@ -262,16 +449,23 @@ mod tests {
         // A fresh id per run: the PostgreSQL database outlives a test run.
         let id = format!("a-{}", hex::encode(random_bytes::<6>().unwrap()));
         assert_eq!(store.assignment(&id).await.unwrap(), None);
+        let put = |doc: &'static str, expected| {
+            let id = id.clone();
+            async move { store.put_assignment(&id, doc, expected).await.unwrap() }
+        };
         assert_eq!(
-            store
-                .put_assignment(&id, "{\"v\":1}", Some(0))
-                .await
-                .unwrap(),
-            1
+            put("{\"v\":1}", Some(0)).await,
+            Put {
+                revision: 1,
+                created: true
+            }
         );
         assert_eq!(
-            store.put_assignment(&id, "{\"v\":2}", None).await.unwrap(),
-            2
+            put("{\"v\":2}", None).await,
+            Put {
+                revision: 2,
+                created: false
+            }
         );
         let e = store.put_assignment(&id, "{}", Some(1)).await.unwrap_err();
         assert!(
@@ -316,12 +510,99 @@ mod tests {
         let s1 = store.submissions(&id, Some("s1")).await.unwrap();
         assert_eq!(s1.len(), 3);
         assert!(s1.iter().all(|s| s.student == "s1" && s.score == 7.5));
+        let times = store
+            .recent_submission_times(&id, "s1", 0, 2)
+            .await
+            .unwrap();
+        assert_eq!(times.len(), 2);
+        assert!(times[0] >= times[1], "newest first: {times:?}");
+        let all = store
+            .recent_submission_times(&id, "s1", 0, 10)
+            .await
+            .unwrap();
+        assert_eq!(all.len(), 3);
+        let later = store
+            .recent_submission_times(&id, "s1", now_ms() + 1000, 10)
+            .await
+            .unwrap();
+        assert!(later.is_empty());
+        // Within a window: the limit counts what the window holds, a replay is not
+        // recorded again, and a full window records nothing.
+        let window = Window {
+            limit: 4,
+            since_ms: 0,
+        };
+        let r = store
+            .record_submission_within(&new("s1", Some("k3")), window)
+            .await
+            .unwrap();
+        let Recorded::New(fourth) = r else {
+            panic!("{r:?}")
+        };
+        let r = store
+            .record_submission_within(&new("s1", Some("k3")), window)
+            .await
+            .unwrap();
+        assert_eq!(r, Recorded::Existing(fourth));
+        let r = store
+            .record_submission_within(&new("s1", None), window)
+            .await
+            .unwrap();
+        let oldest = store.submissions(&id, Some("s1")).await.unwrap()[0].submitted_ms;
+        assert_eq!(r, Recorded::Limited { oldest_ms: oldest });
+        let r = store
+            .record_submission_within(&new("s2", None), window)
+            .await
+            .unwrap();
+        assert!(matches!(r, Recorded::New(_)), "{r:?}");
+        assert_eq!(store.submissions(&id, Some("s1")).await.unwrap().len(), 4);
+        let listed = store.live_assignments().await.unwrap();
+        let mine = listed.iter().find(|l| l.id == id).unwrap();
+        assert_eq!(mine.stored.revision, 2);
 
+        let grader = store
+            .create_token(super::super::Role::Grader, Some(&id))
+            .await
+            .unwrap();
+        let other = store
+            .create_token(super::super::Role::Grader, Some("another"))
+            .await
+            .unwrap();
         assert!(store.delete_assignment(&id).await.unwrap());
         assert!(!store.delete_assignment(&id).await.unwrap());
         assert_eq!(store.assignment(&id).await.unwrap(), None);
+        assert!(
+            !store
+                .live_assignments()
+                .await
+                .unwrap()
+                .iter()
+                .any(|l| l.id == id)
+        );
+        // Its grader tokens went with it, and stay gone; others stay.
+        assert_eq!(
+            store.authenticate(grader.token.expose()).await.unwrap(),
+            None
+        );
+        assert!(
+            store
+                .authenticate(other.token.expose())
+                .await
+                .unwrap()
+                .is_some()
+        );
         // After a deletion the id starts again from nothing, at a revision never used.
-        assert_eq!(store.put_assignment(&id, "{}", Some(0)).await.unwrap(), 3);
+        assert_eq!(
+            put("{}", Some(0)).await,
+            Put {
+                revision: 3,
+                created: true
+            }
+        );
+        assert_eq!(
+            store.authenticate(grader.token.expose()).await.unwrap(),
+            None
+        );
     }
 
     #[tokio::test]

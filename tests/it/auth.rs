@@ -14,12 +14,12 @@ use crate::support::run;
 use crate::support_server::{client, problem, resized, shipped, spawn_binary_env};
 
 /// The bootstrap token the tests' servers get in `RAYTILE_ADMIN_TOKEN`.
-const ADMIN: &str = "admin-token-for-the-tests-only";
+pub(crate) const ADMIN: &str = "admin-token-for-the-tests-only";
 
 /// The server process, killed when the test ends however it ends.
-struct Server {
+pub(crate) struct Server {
     child: Child,
-    url: String,
+    pub(crate) url: String,
     /// Kept so that the log reader keeps draining the pipe.
     _logs: std::sync::mpsc::Receiver<String>,
 }
@@ -31,7 +31,7 @@ impl Drop for Server {
     }
 }
 
-fn serve(args: &[&str], env: &[(&str, &str)]) -> Server {
+pub(crate) fn serve(args: &[&str], env: &[(&str, &str)]) -> Server {
     let (child, addr, logs) = spawn_binary_env(args, env);
     Server {
         child,
@@ -41,7 +41,7 @@ fn serve(args: &[&str], env: &[(&str, &str)]) -> Server {
 }
 
 /// `raytile token create` with these arguments: the token (stdout) and its id (stderr).
-fn create_token(args: &[&str]) -> (String, String) {
+pub(crate) fn create_token(args: &[&str]) -> (String, String) {
     let out = run(&[&["token", "create"], args].concat());
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "token create failed: {stderr}");

@@ -3,6 +3,9 @@
 //! - `support_server`: a `TestApp` (the real router on a loopback port), scene makers;
 //! - `assignment`: `raytile grade-assignment`, a whole assignment graded offline, hidden
 //!   scenes' feedback redacted;
+//! - `assignments_http`: the assignment routes of `raytile serve`: pushing, reading,
+//!   grader scoping, submissions (hidden feedback, idempotency, the rate limit), on
+//!   SQLite and PostgreSQL (PostgreSQL's run is ignored unless asked for);
 //! - `auth`: `raytile token create` and `serve --require-token`: bearer tokens and
 //!   roles on SQLite and PostgreSQL (PostgreSQL's run is ignored unless asked for:
 //!   `bash .ci/test-all` starts one);
@@ -41,6 +44,7 @@ mod support;
 mod support_server;
 
 mod assignment;
+mod assignments_http;
 mod auth;
 mod cli;
 mod cluster;

@@ -215,6 +215,10 @@ async fn every_documented_operation_is_served() {
     }))
     .unwrap();
     for (path, item) in doc["paths"].as_object().unwrap() {
+        if path.starts_with("/v1/assignments") {
+            // They need the database and tokens: `assignments_http` checks every answer.
+            continue;
+        }
         for method in item.as_object().unwrap().keys() {
             let url = app.at(&path.replace("{name}", "showcase"));
             let (url, body) = match path.as_str() {

@@ -145,3 +145,114 @@ async fn concurrent_grades_of_one_scene_render_its_reference_once() {
     assert_eq!(app.metric(MISSES).await, 1.0, "rendered once");
     assert_eq!(app.metric(HITS).await, 5.0);
 }
+
+// ---- assignment submissions ------------------------------------------------------------
+
+async fn metric_of(url: &str, name: &str) -> f64 {
+    let text = client()
+        .get(format!("{url}/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    metric_value(&text, name).unwrap_or_else(|| panic!("no {name} in {text}"))
+}
+
+async fn post_as_admin(url: &str, path: &str, scene: &Value) -> Vec<u8> {
+    let res = client()
+        .post(format!("{url}{path}"))
+        .header("authorization", format!("Bearer {}", crate::auth::ADMIN))
+        .header("content-type", "application/json")
+        .body(serde_json::to_vec(scene).unwrap())
+        .send()
+        .await
+        .unwrap();
+    body_of(res, path).await
+}
+
+/// Submits `files` (scene name, file name, bytes) for `student`: the JSON result.
+async fn submit(url: &str, id: &str, student: &str, files: &[(&str, &str, Vec<u8>)]) -> Value {
+    let mut form = reqwest::multipart::Form::new().text("student", student.to_owned());
+    for (scene, file, bytes) in files {
+        form = form.part(
+            scene.to_string(),
+            reqwest::multipart::Part::bytes(bytes.clone()).file_name(file.to_string()),
+        );
+    }
+    let res = client()
+        .post(format!("{url}/v1/assignments/{id}/submissions"))
+        .header("authorization", format!("Bearer {}", crate::auth::ADMIN))
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(res.status(), 201);
+    res.json().await.unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn submissions_of_an_assignment_render_each_reference_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let server = crate::auth::serve(
+        &["--data-dir", data.to_str().unwrap()],
+        &[("RAYTILE_ADMIN_TOKEN", crate::auth::ADMIN)],
+    );
+    let url = server.url.clone();
+    let spheres = resized(shipped("sphere.json"), 40, 30);
+    let cubes = resized(shipped("cube.json"), 40, 30);
+    let doc = json!({"version": 1, "title": "Once", "scenes": [
+        {"name": "spheres", "scene": spheres, "points": 5, "grade": "image", "visibility": "visible"},
+        {"name": "cubes", "scene": cubes, "points": 5, "grade": "both", "visibility": "hidden"}]});
+    let res = client()
+        .put(format!("{url}/v1/assignments/once"))
+        .header("authorization", format!("Bearer {}", crate::auth::ADMIN))
+        .header("content-type", "application/json")
+        .body(serde_json::to_vec(&doc).unwrap())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(res.status(), 201);
+    let files = vec![
+        (
+            "spheres",
+            "spheres.png",
+            post_as_admin(&url, "/v1/render", &spheres).await,
+        ),
+        (
+            "cubes",
+            "cubes.png",
+            post_as_admin(&url, "/v1/render", &cubes).await,
+        ),
+        (
+            "cubes",
+            "cubes.json",
+            post_as_admin(&url, "/v1/hits", &cubes).await,
+        ),
+    ];
+    // Four students at once: three references (two scenes, one of them graded twice),
+    // each rendered once.
+    let first: Vec<_> = (0..4)
+        .map(|i| {
+            let (url, files) = (url.clone(), files.clone());
+            tokio::spawn(async move { submit(&url, "once", &format!("s{i}"), &files).await })
+        })
+        .collect();
+    let mut results = Vec::new();
+    for f in first {
+        results.push(f.await.unwrap());
+    }
+    assert_eq!(metric_of(&url, MISSES).await, 3.0);
+    assert_eq!(metric_of(&url, HITS).await, 9.0);
+    assert_eq!(metric_of(&url, ENTRIES).await, 3.0);
+    // A later submission renders nothing, and fares as the first did.
+    results.push(submit(&url, "once", "late", &files).await);
+    assert_eq!(metric_of(&url, MISSES).await, 3.0);
+    assert_eq!(metric_of(&url, HITS).await, 12.0);
+    for r in &results {
+        assert_eq!(r["score"], 10.0, "{r}");
+        assert_eq!(r["scenes"], results[0]["scenes"]);
+    }
+}
