@@ -197,7 +197,9 @@ impl MemoryBudget {
         }
         let cache = self.cache.get()?;
         let short = (n as u64).saturating_sub(self.units.available_permits() as u64) * UNIT_BYTES;
-        if cache.release(short) == 0 {
+        // Emptying the cache would not make it fit: keep the references the waiting
+        // requests are likely to need.
+        if cache.bytes() < short || cache.release(short) == 0 {
             return None;
         }
         self.units.clone().try_acquire_many_owned(n).ok()
@@ -544,10 +546,11 @@ mod tests {
     }
 
     #[test]
-    fn the_reference_cache_takes_nothing_while_a_request_waits_for_memory() {
+    fn the_reference_cache_takes_nothing_while_a_request_waits_and_keeps_what_would_not_help() {
         runtime().block_on(async {
             let (b, cache) = cached_budget(64 << 10);
             let s = Shutdown::default();
+            cache_one(&cache, 9, 4);
             let first = b.reserve(&Charge::body(50 << 10, "a"), &s).await.unwrap();
             let (b2, s2) = (b.clone(), s.clone());
             let waiter = tokio::spawn(async move {
@@ -558,7 +561,10 @@ mod tests {
             while b.waiting() == 0 {
                 tokio::time::sleep(Duration::from_millis(1)).await;
             }
-            // 14 KiB are free, but a request waits for them.
+            // Giving back its 4 KiB would not let 30 KiB fit: the cache keeps them.
+            assert_eq!(cache.len(), 1);
+            // 10 KiB are free, but a request waits for them: a new reference is not
+            // kept, and the old one, given back to make room, goes to the waiter too.
             cache_one(&cache, 0, 4);
             assert!(cache.is_empty());
             drop(first);
