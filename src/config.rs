@@ -87,6 +87,12 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYTILE_MEMORY_BYTES", default_value = "768MiB", value_parser = parse_bytes)]
     pub memory_bytes: u64,
 
+    /// The most the cache of grading references may hold, in bytes like `--memory-bytes`
+    /// (`0`: no cache; default a quarter of `--memory-bytes`). Its entries are reserved
+    /// in the memory budget and given back whenever a request needs the room.
+    #[arg(long, env = "RAYTILE_REFERENCE_CACHE_BYTES", value_parser = parse_cache_bytes)]
+    pub reference_cache_bytes: Option<u64>,
+
     /// Renders admitted to trace at once (default: one per core); they share the rayon
     /// threads, so more only adds latency to each.
     #[arg(long, env = "RAYTILE_MAX_RENDERS", value_parser = clap::value_parser!(u32).range(1..))]
@@ -218,6 +224,7 @@ impl Default for ServeArgs {
             max_rays: DEFAULT_MAX_RAYS,
             max_body_bytes: DEFAULT_MAX_BODY_BYTES,
             memory_bytes: DEFAULT_MEMORY_BYTES,
+            reference_cache_bytes: None,
             max_renders: None,
             queue: DEFAULT_QUEUE,
             deadline_seconds: DEFAULT_DEADLINE_SECONDS,
@@ -294,6 +301,14 @@ impl ServeArgs {
         Duration::from_secs_f64(self.grace_seconds)
     }
 
+    /// The reference cache's capacity: the flag, else a quarter of the memory budget;
+    /// never more than the budget.
+    pub fn reference_cache_bytes(&self) -> u64 {
+        self.reference_cache_bytes
+            .unwrap_or(self.memory_bytes / 4)
+            .min(self.memory_bytes)
+    }
+
     /// The smallest memory budget these settings allow: two bodies of
     /// `--max-body-bytes` (one read, one copy as a route parses it) and
     /// [`MIN_MEMORY_HEADROOM_BYTES`]; less, and a request within the body limit could be
@@ -354,6 +369,14 @@ pub(crate) fn parse_seconds(s: &str) -> Result<f64, String> {
     }
 }
 
+/// `0`, or a number of bytes as [`parse_bytes`] reads it.
+fn parse_cache_bytes(s: &str) -> Result<u64, String> {
+    if s.trim() == "0" {
+        return Ok(0);
+    }
+    parse_bytes(s)
+}
+
 /// A number of bytes, plain or with a unit: `KiB`, `MiB`, `GiB` (powers of 1024), `kB`,
 /// `MB`, `GB` (powers of 1000), `K`, `M`, `G` as Kubernetes' `Ki`, `Mi`, `Gi` too; at least
 /// 1 MiB, at most 4 TiB (what the memory ledger can count).
@@ -408,6 +431,17 @@ mod tests {
         ] {
             assert!(parse_bytes(bad).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn the_reference_cache_is_a_quarter_of_the_budget_unless_told() {
+        let mut c = ServeArgs::default();
+        assert_eq!(c.reference_cache_bytes(), DEFAULT_MEMORY_BYTES / 4);
+        c.reference_cache_bytes = Some(1 << 40);
+        assert_eq!(c.reference_cache_bytes(), DEFAULT_MEMORY_BYTES);
+        assert_eq!(parse_cache_bytes("0"), Ok(0));
+        assert_eq!(parse_cache_bytes("64MiB"), Ok(64 << 20));
+        assert!(parse_cache_bytes("12").is_err());
     }
 
     #[test]

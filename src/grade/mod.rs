@@ -21,6 +21,7 @@
 //! cannot read is a [`GradeError`] saying what is wrong, never a panic.
 
 pub mod answer;
+pub mod cache;
 pub mod compare;
 pub mod diagnose;
 pub mod explain;
@@ -178,6 +179,9 @@ pub struct GradeOptions {
     /// What diagnosing a failing submission may cost.
     #[serde(skip)]
     pub diagnosis: diagnose::Settings,
+    /// Where references rendered before are kept ([`cache`]); None renders every one.
+    #[serde(skip)]
+    pub references: Option<std::sync::Arc<cache::ReferenceCache>>,
 }
 
 impl Default for GradeOptions {
@@ -189,6 +193,7 @@ impl Default for GradeOptions {
             scoring: Scoring::default(),
             cancel: Cancel::new(),
             diagnosis: diagnose::Settings::default(),
+            references: None,
         }
     }
 }
@@ -425,23 +430,27 @@ pub fn grade(
                 });
             }
             // A float image is compared in linear radiance; its statistics are those of
-            // both images as the renderer would quantise them.
-            let started = std::time::Instant::now();
-            let (reference, submitted, cmp) = match &img.pixels {
+            // both images as the renderer would quantise them. Diagnosis is budgeted by
+            // the reference's render time and the comparison, cached or not.
+            let (reference, submitted, cmp, reference_time) = match &img.pixels {
                 Raster::Rgb8(s) => {
-                    let reference = reference_image(r, &opts.cancel)?;
-                    let cmp = compare::images(&reference, s, tol, opts.worst);
-                    (reference, std::borrow::Cow::Borrowed(s), cmp)
+                    let reference = reference_of(r, opts, || reference_image(r, &opts.cancel))?;
+                    let started = std::time::Instant::now();
+                    let cmp = compare::images(&reference.value, s, tol, opts.worst);
+                    let time = reference.render_time + started.elapsed();
+                    (reference.value, std::borrow::Cow::Borrowed(s), cmp, time)
                 }
                 Raster::Linear(s) => {
-                    let linear = reference_linear(r, &opts.cancel)?;
-                    let reference = linear.quantise(r.scene.gamma);
-                    let cmp = compare::linear(&linear, s, &reference, tol, opts.worst);
+                    let linear = reference_of(r, opts, || reference_linear(r, &opts.cancel))?;
+                    let started = std::time::Instant::now();
+                    let reference = linear.value.quantise(r.scene.gamma);
+                    let cmp = compare::linear(&linear.value, s, &reference, tol, opts.worst);
                     let submitted = std::borrow::Cow::Owned(s.quantise(r.scene.gamma));
-                    (reference, submitted, cmp)
+                    let time = linear.render_time + started.elapsed();
+                    (std::sync::Arc::new(reference), submitted, cmp, time)
                 }
             };
-            let ctx = diagnose_context(opts, started.elapsed());
+            let ctx = diagnose_context(opts, reference_time);
             let image = report::ImageMetrics {
                 errors: metrics::error_stats(&reference, &submitted),
                 ssim: metrics::ssim(&reference, &submitted),
@@ -459,18 +468,35 @@ pub fn grade(
         }
         Submission::Hits(data) => {
             let placed = data.place(w, h)?;
-            let started = std::time::Instant::now();
-            let reference = reference_hits(r, &opts.cancel)?;
-            let ctx = diagnose_context(opts, started.elapsed());
-            let cmp = compare::hits(&reference, &placed, w, h, tol, opts.worst);
+            let reference = reference_of(r, opts, || reference_hits(r, &opts.cancel))?;
+            let ctx = diagnose_context(opts, reference.render_time);
+            let reference = &*reference.value;
+            let cmp = compare::hits(reference, &placed, w, h, tol, opts.worst);
             let mut report = Report::new(data.format, w, h, tol, opts, cmp, None);
             let against = diagnose::Against::Hits {
-                reference: &reference,
+                reference,
                 submitted: &placed,
             };
             report.diagnosis = diagnose::for_report(r, &report, against, tol, &ctx);
             Ok(report)
         }
+    }
+}
+
+/// The scene's reference of type `T`: from `opts.references` when it holds it (or can
+/// keep it once `render` has made it), else rendered by `render`.
+fn reference_of<T: cache::Cached>(
+    r: &Renderer,
+    opts: &GradeOptions,
+    render: impl FnOnce() -> Result<T, GradeError>,
+) -> Result<cache::Rendered<T>, GradeError> {
+    let cached = opts
+        .references
+        .as_ref()
+        .and_then(|c| Some((c, cache::SceneKey::of(&r.scene)?)));
+    match cached {
+        Some((references, key)) => references.get_or_render(key, render),
+        None => cache::render_uncached(render),
     }
 }
 

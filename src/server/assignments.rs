@@ -736,6 +736,7 @@ fn grade_options(app: &AppState) -> GradeOptions {
             max_pixels: app.config.diagnosis_max_pixels,
             ..defaults.diagnosis
         },
+        references: Some(app.references.clone()),
         ..defaults
     }
 }
@@ -800,12 +801,23 @@ async fn submit(
     let charge = grading_charge(&a, &files, app.config.diagnosis_max_pixels);
     charge_to(&app, &mut memory, &charge, deadline).await?;
 
+    // Concurrent submissions render each missing reference once (`grade::cache`).
+    let scenes: Vec<_> = a
+        .scenes
+        .iter()
+        .map(|s| (s.scene.clone(), s.graded.kinds()))
+        .collect();
+    let wants = blocking(&app, deadline, move || grade::cache::wants(&scenes)).await?;
+    let turn = tokio::time::timeout_at(deadline, app.references.turn(&wants))
+        .await
+        .map_err(|_| super::extract::deadline_exceeded(&app))?;
     let opts = grade_options(&app);
     let now = unix_now();
     let deadline_len = app.config.deadline();
     let (json, answer, score) = job::run(&app, &info, "assignment", move |cancel| {
-        // Given back when the work ends.
+        // Given back when the work ends, as is the turn.
         let _memory = memory;
+        let _turn = turn;
         let opts = GradeOptions {
             cancel: cancel.clone(),
             ..opts

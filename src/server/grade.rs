@@ -67,6 +67,7 @@ use crate::format::footprint::{self as decoding, Decoding, Family};
 use crate::format::raster::RasterFormat;
 use crate::format::{HitFormat, ReadError};
 use crate::grade::answer::{ReportForm, write_report, write_ungradable};
+use crate::grade::cache::{Kind, SceneKey};
 use crate::grade::report::{LmsOptions, Visibility};
 use crate::grade::score::ScoringMode;
 use crate::grade::{
@@ -773,13 +774,28 @@ async fn grade(
             max_pixels: app.config.diagnosis_max_pixels,
             ..defaults.diagnosis
         },
+        references: Some(app.references.clone()),
         ..defaults
     };
+    // Concurrent grades of one scene render its reference once: the others wait here,
+    // off the trace threads, and then find it cached. Hashing a large document takes a
+    // while: not on tokio's threads either.
+    let scene = prepared.scene.clone();
+    let kind = Kind::of(&prepared.submission);
+    let wants: Vec<_> = blocking(&app, deadline, move || SceneKey::of(&scene))
+        .await?
+        .map(|k| (k, kind))
+        .into_iter()
+        .collect();
+    let turn = tokio::time::timeout_at(deadline, app.references.turn(&wants))
+        .await
+        .map_err(|_| super::extract::deadline_exceeded(&app))?;
     let deadline_len = app.config.deadline();
     let (cost, metrics) = (CostLimit::new(&app.config), app.metrics.clone());
     let (bytes, verdict) = job::run(&app, &info, "grade", move |cancel| {
-        // Given back when the work ends.
+        // Given back when the work ends, as is the turn.
         let _memory = memory;
+        let _turn = turn;
         let Prepared {
             scene,
             submission,

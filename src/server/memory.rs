@@ -30,8 +30,16 @@
 //!
 //! The ledger counts in KiB (a charge is rounded up), which lets a tokio semaphore
 //! keep it: fair, cancellation-safe, and with `u32` permits good for 4 TiB.
+//!
+//! The reference cache ([`crate::grade::cache`]) keeps its references in the same
+//! ledger, through [`MemoryBudget::cache_ledger`]: an entry takes its bytes only when
+//! they are free now (never while a request waits for memory), and gives them back
+//! whenever a request's charge does not fit now ([`MemoryBudget::reclaim_from`]), before
+//! that request would wait or be refused. So the cache uses memory no request needs, and
+//! never makes one fail. `raytile_memory_reserved_bytes` counts the requests' part,
+//! `raytile_reference_cache_bytes` the cache's.
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use prometheus::IntGauge;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
@@ -40,6 +48,7 @@ use super::error::ApiError;
 use super::metrics::Metrics;
 use super::places::Places;
 use super::shutdown::{Phase, Shutdown};
+use crate::grade::cache::{Lease, Ledger, ReferenceCache};
 use crate::scene::Problem;
 
 /// The ledger's unit: charges are rounded up to whole KiB.
@@ -98,6 +107,8 @@ pub struct MemoryBudget {
     total_bytes: u64,
     queue: Places,
     metrics: Metrics,
+    /// What gives memory back when a charge does not fit now.
+    cache: OnceLock<Arc<ReferenceCache>>,
 }
 
 /// Bytes held in the ledger; dropping it gives them back.
@@ -162,7 +173,36 @@ impl MemoryBudget {
             total_bytes,
             queue: Places::new(queue),
             metrics,
+            cache: OnceLock::new(),
         }
+    }
+
+    /// The ledger the reference cache takes its entries' bytes from.
+    pub fn cache_ledger(&self) -> Arc<dyn Ledger> {
+        Arc::new(CacheLedger {
+            units: self.units.clone(),
+        })
+    }
+
+    /// Makes `cache` give back its bytes when a charge does not fit now (once; later
+    /// calls are ignored).
+    pub fn reclaim_from(&self, cache: Arc<ReferenceCache>) {
+        let _ = self.cache.set(cache);
+    }
+
+    /// `n` units now, after asking the cache for what is missing if they are not free.
+    fn try_take(&self, n: u32) -> Option<OwnedSemaphorePermit> {
+        if let Ok(p) = self.units.clone().try_acquire_many_owned(n) {
+            return Some(p);
+        }
+        let cache = self.cache.get()?;
+        let short = (n as u64).saturating_sub(self.units.available_permits() as u64) * UNIT_BYTES;
+        // Emptying the cache would not make it fit: keep the references the waiting
+        // requests are likely to need.
+        if cache.bytes() < short || cache.release(short) == 0 {
+            return None;
+        }
+        self.units.clone().try_acquire_many_owned(n).ok()
     }
 
     /// The whole budget.
@@ -216,7 +256,7 @@ impl MemoryBudget {
         if n == 0 {
             return Ok(self.empty());
         }
-        if let Ok(p) = self.units.clone().try_acquire_many_owned(n) {
+        if let Some(p) = self.try_take(n) {
             return Ok(self.held(p));
         }
         let Some(_place) = self.queue.enter() else {
@@ -259,14 +299,10 @@ impl MemoryBudget {
             ..charge.clone()
         };
         if held > 0 {
-            let p = self
-                .units
-                .clone()
-                .try_acquire_many_owned(units(more.bytes))
-                .map_err(|_| {
-                    self.metrics.reject("memory");
-                    ApiError::MemoryFull
-                })?;
+            let p = self.try_take(units(more.bytes)).ok_or_else(|| {
+                self.metrics.reject("memory");
+                ApiError::MemoryFull
+            })?;
             r.absorb(self.held(p));
             return Ok(());
         }
@@ -283,6 +319,25 @@ impl MemoryBudget {
             permit: Some(permit),
             gauge: self.metrics.memory_reserved.clone(),
         }
+    }
+}
+
+/// The reference cache's side of the ledger: units taken only when free now, and
+/// never while a request waits for memory (the semaphore hands what is given back to
+/// the waiters first). Never calls back into the cache, which holds its lock here.
+#[derive(Debug)]
+struct CacheLedger {
+    units: Arc<Semaphore>,
+}
+
+impl Ledger for CacheLedger {
+    fn try_take(&self, bytes: u64) -> Option<Lease> {
+        let p = self
+            .units
+            .clone()
+            .try_acquire_many_owned(units(bytes))
+            .ok()?;
+        Some(Box::new(p))
     }
 }
 
@@ -425,6 +480,95 @@ mod tests {
             drop(other);
             drop(r);
             assert_eq!((b.reserved_bytes(), m.memory_reserved.get()), (0, 0));
+        });
+    }
+
+    fn cached_budget(bytes: u64) -> (Arc<MemoryBudget>, Arc<ReferenceCache>) {
+        let (b, m) = budget(bytes, 4);
+        let cache = Arc::new(ReferenceCache::new(
+            bytes,
+            Some(b.cache_ledger()),
+            m.reference_cache.clone(),
+        ));
+        b.reclaim_from(cache.clone());
+        (b, cache)
+    }
+
+    /// Caches a reference of about `kib` KiB for scene number `n`.
+    fn cache_one(cache: &ReferenceCache, n: u32, kib: usize) {
+        let text = format!(
+            r#"{{"version": 1, "image": {{"width": {}, "height": 1}}, "objects": []}}"#,
+            n + 1
+        );
+        let scene = crate::scene::parse(text.as_bytes(), &Default::default()).unwrap();
+        let key = crate::grade::cache::SceneKey::of(&scene).unwrap();
+        let image = crate::grade::RgbImage {
+            width: 1,
+            height: 1,
+            data: vec![0; (kib << 10) - 512],
+        };
+        cache.get_or_render(key, || Ok(image)).unwrap();
+    }
+
+    #[test]
+    fn the_reference_cache_holds_its_bytes_in_the_budget_and_gives_them_to_requests() {
+        runtime().block_on(async {
+            let (b, cache) = cached_budget(64 << 10);
+            let s = Shutdown::default();
+            cache_one(&cache, 0, 20);
+            cache_one(&cache, 1, 20);
+            assert_eq!(cache.len(), 2);
+            assert_eq!(
+                b.reserved_bytes(),
+                40 << 10,
+                "the cache's bytes are in the ledger"
+            );
+            assert_eq!(b.metrics.memory_reserved.get(), 0, "and not the requests'");
+            // 40 KiB do not fit beside the cache now: it gives back its oldest entry
+            // rather than make the request wait.
+            let r = b.reserve(&Charge::body(40 << 10, "a"), &s).await.unwrap();
+            assert_eq!(cache.len(), 1);
+            assert_eq!(b.reserved_bytes(), 60 << 10);
+            // A request that holds memory grows at the cache's expense too, not with 503.
+            let mut r = r;
+            b.resize(&mut r, &Charge::body(60 << 10, "b"), &s)
+                .await
+                .unwrap();
+            assert!(cache.is_empty());
+            // With the budget taken, a new reference is graded but not kept.
+            cache_one(&cache, 2, 20);
+            assert!(cache.is_empty());
+            drop(r);
+            assert_eq!(b.reserved_bytes(), 0);
+            cache_one(&cache, 3, 20);
+            assert_eq!((cache.len(), b.reserved_bytes()), (1, 20 << 10));
+        });
+    }
+
+    #[test]
+    fn the_reference_cache_takes_nothing_while_a_request_waits_and_keeps_what_would_not_help() {
+        runtime().block_on(async {
+            let (b, cache) = cached_budget(64 << 10);
+            let s = Shutdown::default();
+            cache_one(&cache, 9, 4);
+            let first = b.reserve(&Charge::body(50 << 10, "a"), &s).await.unwrap();
+            let (b2, s2) = (b.clone(), s.clone());
+            let waiter = tokio::spawn(async move {
+                b2.reserve(&Charge::body(30 << 10, "b"), &s2)
+                    .await
+                    .map(|r| r.bytes())
+            });
+            while b.waiting() == 0 {
+                tokio::time::sleep(Duration::from_millis(1)).await;
+            }
+            // Giving back its 4 KiB would not let 30 KiB fit: the cache keeps them.
+            assert_eq!(cache.len(), 1);
+            // 10 KiB are free, but a request waits for them: a new reference is not
+            // kept, and the old one, given back to make room, goes to the waiter too.
+            cache_one(&cache, 0, 4);
+            assert!(cache.is_empty());
+            drop(first);
+            assert_eq!(waiter.await.unwrap().unwrap(), 30 << 10);
         });
     }
 

@@ -15,6 +15,8 @@
 //! | `raytile_rejected_requests_total` | counter | `reason` (saturated, shutting_down, deadline, over_budget, memory) |
 //! | `raytile_memory_reserved_bytes`, `raytile_memory_budget_bytes` | gauge | |
 //! | `raytile_render_slots`, `raytile_queue_capacity` | gauge | |
+//! | `raytile_reference_cache_hits_total`, `raytile_reference_cache_misses_total` | counter | |
+//! | `raytile_reference_cache_bytes`, `raytile_reference_cache_entries` | gauge | |
 
 use axum::Router;
 use axum::extract::State;
@@ -28,6 +30,7 @@ use prometheus::{
 
 use super::AppState;
 use super::error::ApiError;
+use crate::grade::cache::CacheMetrics;
 
 /// The routes: `GET /metrics`.
 pub fn router() -> Router<AppState> {
@@ -58,6 +61,8 @@ pub struct Metrics {
     pub memory_reserved: IntGauge,
     /// The memory budget, `--memory-bytes`.
     pub memory_budget: IntGauge,
+    /// The reference cache's hits, misses, bytes and entries (`crate::grade::cache`).
+    pub reference_cache: CacheMetrics,
 }
 
 /// The `reason` labels of `raytile_rejected_requests_total`; `over_budget` counts the
@@ -114,7 +119,8 @@ impl Metrics {
         )?;
         let memory_reserved = IntGauge::new(
             "raytile_memory_reserved_bytes",
-            "Bytes reserved in the memory budget by the requests in flight.",
+            "Bytes reserved in the memory budget by the requests in flight (the reference \
+             cache's are raytile_reference_cache_bytes).",
         )?;
         let memory_budget = IntGauge::new(
             "raytile_memory_budget_bytes",
@@ -144,6 +150,10 @@ impl Metrics {
         registry.register(Box::new(memory_budget.clone()))?;
         registry.register(Box::new(slots))?;
         registry.register(Box::new(capacity))?;
+        let reference_cache = CacheMetrics::new()?;
+        for c in reference_cache.collectors() {
+            registry.register(c)?;
+        }
         Ok(Metrics {
             registry,
             requests,
@@ -156,6 +166,7 @@ impl Metrics {
             rejected,
             memory_reserved,
             memory_budget,
+            reference_cache,
         })
     }
 

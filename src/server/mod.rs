@@ -50,6 +50,7 @@ use tokio::net::TcpListener;
 use tower_http::catch_panic::CatchPanicLayer;
 
 use crate::config::ServeArgs;
+use crate::grade::cache::ReferenceCache;
 use crate::render::Scheduler;
 use crate::store::Store;
 use admission::Admission;
@@ -82,6 +83,9 @@ pub struct Shared {
     pub shutdown: Shutdown,
     /// The token store, opened when `--require-token` is set.
     pub auth: Option<auth::Auth>,
+    /// The references of recently graded scenes, `--reference-cache-bytes`, kept in the
+    /// memory budget.
+    pub references: Arc<ReferenceCache>,
     /// The assignment routes' token checks, on the store opened when first needed.
     pub course: assignments::Course,
 }
@@ -117,9 +121,17 @@ impl AppState {
             .panic_handler(|_| tracing::error!("a trace thread panicked"))
             .build()
             .context("cannot start the trace threads")?;
+        let memory = MemoryBudget::new(config.memory_bytes, config.queue, metrics.clone());
+        let references = Arc::new(ReferenceCache::new(
+            config.reference_cache_bytes(),
+            Some(memory.cache_ledger()),
+            metrics.reference_cache.clone(),
+        ));
+        memory.reclaim_from(references.clone());
         Ok(AppState(Arc::new(Shared {
             admission: Admission::new(slots, config.queue, metrics.clone()),
-            memory: MemoryBudget::new(config.memory_bytes, config.queue, metrics.clone()),
+            memory,
+            references,
             config,
             pool: Scheduler::new(pool),
             metrics,

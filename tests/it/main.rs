@@ -30,6 +30,7 @@
 //!   folders, visibility) and the scoring modes, on the command line and over HTTP;
 //! - `memory`: the memory budget, its refusals, its queue and its ledger;
 //! - `properties`: BVH against brute force, invariance, determinism, regions;
+//! - `reference_cache`: references rendered once over `/v1/grade`, the same answers;
 //! - `schema`: the JSON Schema and the parser agree;
 //! - `openapi`: `api/openapi.yaml` and the server agree;
 //! - `server`: the HTTP service as a client sees it, and the binary's `serve` and
@@ -65,6 +66,7 @@ mod lms;
 mod memory;
 mod openapi;
 mod properties;
+mod reference_cache;
 mod schema;
 mod server;
 mod server_grade;
