@@ -4,10 +4,7 @@
 //! number of primitives.
 //!
 //! Boxes are padded by a tiny relative margin and the slab test rounds its far distance
-//! up, so the hierarchy never loses a hit that testing every primitive would find. The
-//! traversed boxes are stored in single precision, rounded outward (each holds its
-//! double-precision box), and widened back to `f64` for the same slab test: half the
-//! memory a node takes, and a larger box only ever lets more through; ties
+//! up, so the hierarchy never loses a hit that testing every primitive would find; ties
 //! are resolved by the caller's leaf function (nodes are entered when their entry `λ`
 //! is *at most* the best so far, so a tie in a later node is still seen).
 
@@ -41,39 +38,19 @@ struct Node {
 /// pushing it).
 ///
 /// Boxes are stored axis by axis with the two children side by side, so that both slab
-/// tests run as two-lane vector operations; in `f32` rounded outward, so a node fills
-/// one cache line instead of straddling two (traversal is bound by memory on big trees).
+/// tests run as two-lane vector operations.
 #[derive(Debug, Clone, Copy)]
-#[repr(C, align(64))]
 struct Inner {
-    /// `min[axis][child]`, rounded down.
-    min: [[f32; 2]; 3],
-    /// `max[axis][child]`, rounded up.
-    max: [[f32; 2]; 3],
+    /// `min[axis][child]`.
+    min: [[f64; 2]; 3],
+    /// `max[axis][child]`.
+    max: [[f64; 2]; 3],
     /// Each child: an index into `inner`, or `LEAF | index` into `leaves`.
     child: [u32; 2],
 }
 
 /// Marks a child reference as a leaf.
 const LEAF: u32 = 1 << 31;
-
-/// The largest `f32` at most `x` (`x` not NaN).
-fn f32_down(x: f64) -> f32 {
-    let f = x as f32;
-    if f as f64 > x { f.next_down() } else { f }
-}
-
-/// The smallest `f32` at least `x` (`x` not NaN).
-fn f32_up(x: f64) -> f32 {
-    let f = x as f32;
-    if (f as f64) < x { f.next_up() } else { f }
-}
-
-/// A node's stored corner, back in `f64` (exactly) for the slab test.
-#[inline(always)]
-fn widen(a: &[[f32; 2]; 3]) -> [[f64; 2]; 3] {
-    a.map(|pair| pair.map(f64::from))
-}
 
 /// A BVH over primitives given by their bounds.
 #[derive(Debug, Clone)]
@@ -149,18 +126,9 @@ impl Bvh {
         let me = self.inner.len();
         let (l, r) = (i + 1, n.offset as usize);
         let (a, b) = (self.nodes[l], self.nodes[r]);
-        let pair = |a: f64, b: f64, round: fn(f64) -> f32| [round(a), round(b)];
         self.inner.push(Inner {
-            min: [
-                pair(a.min.x, b.min.x, f32_down),
-                pair(a.min.y, b.min.y, f32_down),
-                pair(a.min.z, b.min.z, f32_down),
-            ],
-            max: [
-                pair(a.max.x, b.max.x, f32_up),
-                pair(a.max.y, b.max.y, f32_up),
-                pair(a.max.z, b.max.z, f32_up),
-            ],
+            min: [[a.min.x, b.min.x], [a.min.y, b.min.y], [a.min.z, b.min.z]],
+            max: [[a.max.x, b.max.x], [a.max.y, b.max.y], [a.max.z, b.max.z]],
             child: [0, 0],
         });
         let cl = self.flatten(l);
@@ -334,7 +302,7 @@ impl Bvh {
                 }
             } else {
                 let n = &self.inner[cur as usize];
-                let (h0, h1) = ray.enter2(&widen(&n.min), &widen(&n.max), t_min, t_max);
+                let (h0, h1) = ray.enter2(&n.min, &n.max, t_min, t_max);
                 match (h0, h1) {
                     (Some(a), Some(b)) => {
                         let (near, far, t_far) = if a <= b {
@@ -401,7 +369,7 @@ impl Bvh {
                 }
             } else {
                 let n = &self.inner[cur as usize];
-                let (h0, h1) = ray.enter2(&widen(&n.min), &widen(&n.max), t_min, t_max);
+                let (h0, h1) = ray.enter2(&n.min, &n.max, t_min, t_max);
                 let (h0, h1) = (h0.is_some(), h1.is_some());
                 if h0 || h1 {
                     if h0 && h1 {
@@ -560,62 +528,6 @@ mod tests {
 
     use proptest::prelude::*;
 
-    #[test]
-    fn single_precision_corners_round_outward() {
-        let mut xs = vec![
-            0.0,
-            -0.0,
-            1e-300,
-            -1e-300,
-            1e300,
-            -1e300,
-            0.1,
-            -0.1,
-            1.0 / 3.0,
-        ];
-        xs.extend((1..2000).map(|i| (i as f64 * 0.618_033_988_749_895).fract() * 2e4 - 1e4));
-        xs.extend([
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f32::MAX as f64,
-            16_777_217.0,
-        ]);
-        for x in xs {
-            let (lo, hi) = (f32_down(x) as f64, f32_up(x) as f64);
-            assert!(lo <= x && x <= hi, "{x:e}: [{lo:e}, {hi:e}]");
-            // Tight: the next f32 out would not be needed.
-            assert!(f32_down(x).next_up() as f64 > x || lo == x, "{x:e}");
-            assert!((f32_up(x).next_down() as f64) < x || hi == x, "{x:e}");
-        }
-    }
-
-    /// Boxes whose corners are not `f32` numbers, so the stored boxes are rounded.
-    fn free_box() -> impl Strategy<Value = Aabb> {
-        (
-            prop::array::uniform3(-4.0f64..4.0),
-            prop::array::uniform3(1e-6f64..3.0),
-        )
-            .prop_map(|(c, e)| {
-                let min = DVec3::from(c);
-                Aabb {
-                    min,
-                    max: min + DVec3::from(e),
-                }
-            })
-    }
-
-    /// Rays from a corner of box `pick` (of however many there are), so on its faces,
-    /// edges and corner, running along the axes, the diagonals or anywhere.
-    fn corner_ray() -> impl Strategy<Value = (usize, u8, DVec3)> {
-        let steps = prop::array::uniform3(-1i32..=1)
-            .prop_filter("a direction", |d| d != &[0, 0, 0])
-            .prop_map(|d| DVec3::new(d[0] as f64, d[1] as f64, d[2] as f64));
-        let free = prop::array::uniform3(-1.0f64..1.0)
-            .prop_filter("a direction", |d| d != &[0.0; 3])
-            .prop_map(DVec3::from);
-        (any::<usize>(), 0u8..8, prop_oneof![3 => steps, 1 => free])
-    }
-
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(256))]
 
@@ -643,43 +555,6 @@ mod tests {
                     bvh.any(&ray, 1e-9, t_max, blocked),
                     (0..boxes.len() as u32).any(blocked)
                 );
-            }
-        }
-
-        /// The same on boxes whose stored single-precision corners are rounded, with
-        /// rays starting on their corners (closest and any-hit).
-        #[test]
-        fn rounded_tree_finds_what_every_box_finds(
-            boxes in prop::collection::vec(free_box(), 1..80),
-            rays in prop::collection::vec(corner_ray(), 1..40),
-        ) {
-            let bvh = Bvh::build(&boxes);
-            for (pick, corner, d) in rays {
-                let b = &boxes[pick % boxes.len()];
-                let o = DVec3::new(
-                    if corner & 1 == 0 { b.min.x } else { b.max.x },
-                    if corner & 2 == 0 { b.min.y } else { b.max.y },
-                    if corner & 4 == 0 { b.min.z } else { b.max.z },
-                );
-                let ray = SlabRay::new(o, d);
-                let fast = closest_of(&boxes, o, d, |leaf| {
-                    bvh.closest(&ray, 1e-9, f64::INFINITY, leaf);
-                });
-                let slow = closest_of(&boxes, o, d, |leaf| {
-                    let mut limit = f64::INFINITY;
-                    for i in 0..boxes.len() as u32 {
-                        limit = leaf(i, limit);
-                    }
-                });
-                prop_assert_eq!(fast, slow, "ray {:?} + λ {:?}", o, d);
-                for t_max in [slow.map_or(3.0, |(t, _)| t), 0.5] {
-                    let blocked =
-                        |i: u32| box_surface(&boxes[i as usize], o, d, 1e-9, t_max).is_some();
-                    prop_assert_eq!(
-                        bvh.any(&ray, 1e-9, t_max, blocked),
-                        (0..boxes.len() as u32).any(blocked)
-                    );
-                }
             }
         }
     }
