@@ -238,17 +238,8 @@ fn moller_trumbore<P: Probe>(
     let inv = 1.0 / det;
     let s = ray.origin - tri.v0;
     let u = s.dot(p) * inv;
-    // Most tests miss: without a probe to show `u, v, t`, stop at the first coordinate
-    // that rules the triangle out (the same comparisons as below, on the same values).
-    // `!(u >= 0)` also catches a NaN; `u > 1` rules out `u + v ≤ 1` for any `v ≥ 0`.
-    if !probe.active() && (!(u >= 0.0) || u > 1.0) {
-        return None;
-    }
     let q = s.cross(tri.e1);
     let v = ray.dir.dot(q) * inv;
-    if !probe.active() && !(v >= 0.0 && u + v <= 1.0) {
-        return None;
-    }
     let t = tri.e2.dot(q) * inv;
     let hit = u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t > t_min && t <= t_max;
     if probe.active() {
