@@ -39,6 +39,7 @@ use tokio::time::Instant;
 
 use super::TraceOptions;
 use super::input::{read_input, scene_error};
+use super::remote::{client_builder, server_url};
 use crate::format::png::PngReader;
 use crate::output::PngSink;
 use crate::render::{Rect, Tile, TileSink};
@@ -301,32 +302,6 @@ fn next_wake(jobs: &[Job], servers: &[ServerSlot], per_server: u32) -> Option<In
         .min()
 }
 
-/// A server base URL, checked: `http://host[:port][/prefix]`, without a trailing slash.
-pub fn server_url(s: &str) -> anyhow::Result<String> {
-    base_url(s, false)
-}
-
-/// A base URL as [`server_url`] checks it, with `https://` allowed too when `tls`: a
-/// course server is often reached across the internet, replicas never are.
-pub fn base_url(s: &str, tls: bool) -> anyhow::Result<String> {
-    let s = s.trim();
-    let url = reqwest::Url::parse(s).with_context(|| format!("`{s}` is not a URL"))?;
-    let scheme_ok = url.scheme() == "http" || (tls && url.scheme() == "https");
-    if !scheme_ok {
-        if tls {
-            bail!("`{s}`: give the server as http:// or https://");
-        }
-        bail!(
-            "`{s}`: only http:// servers are supported (raytile speaks plain HTTP to its replicas)"
-        );
-    }
-    if url.host_str().is_none_or(str::is_empty) || url.query().is_some() || url.fragment().is_some()
-    {
-        bail!("`{s}`: give a server as http(s)://host:port, with no query or fragment");
-    }
-    Ok(url.as_str().trim_end_matches('/').to_owned())
-}
-
 /// The band writer all requests share.
 type Sink = PngSink<File>;
 
@@ -370,7 +345,7 @@ pub fn render(
     let bands = split_bands(region, opts.tile, count);
     let band_px = bands.first().map_or(1, |b| b.height);
     let timeout = Duration::from_secs_f64(remote.request_timeout_seconds);
-    let client = reqwest::Client::builder()
+    let client = client_builder()
         .timeout(timeout)
         .connect_timeout(CONNECT_TIMEOUT.min(timeout))
         .build()
@@ -903,33 +878,6 @@ mod tests {
             ),
             Some((0, 0))
         );
-    }
-
-    #[test]
-    fn server_urls_are_plain_http_bases() {
-        assert_eq!(
-            server_url("http://10.0.0.1:8080").unwrap(),
-            "http://10.0.0.1:8080"
-        );
-        assert_eq!(
-            server_url(" http://lb/raytile/ ").unwrap(),
-            "http://lb/raytile"
-        );
-        for bad in ["https://lb", "lb:8080", "http://lb/?x=1", "", "ftp://x"] {
-            assert!(server_url(bad).is_err(), "{bad}");
-        }
-    }
-
-    #[test]
-    fn course_servers_may_be_https() {
-        assert_eq!(
-            base_url("https://grader.example.edu/raytile/", true).unwrap(),
-            "https://grader.example.edu/raytile"
-        );
-        assert!(base_url("https://lb", false).is_err());
-        for bad in ["ftp://x", "https://lb/?x=1", "grader:8080"] {
-            assert!(base_url(bad, true).is_err(), "{bad}");
-        }
     }
 
     #[test]

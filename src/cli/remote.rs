@@ -7,11 +7,10 @@
 use std::fmt::Write as _;
 use std::time::Duration;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use reqwest::{Method, RequestBuilder, Response, StatusCode, Url};
 use serde_json::Value;
 
-use super::distributed::base_url;
 use crate::store::Secret;
 
 /// How long connecting may take before a request gives up.
@@ -34,6 +33,40 @@ pub struct ServerArgs {
     /// the environment: the command line shows in `ps`.
     #[arg(long, env = "RAYTILE_TOKEN", hide_env_values = true)]
     pub token: Option<Secret>,
+}
+
+/// A server base URL, checked: `http://host[:port][/prefix]`, without a trailing slash.
+pub fn server_url(s: &str) -> anyhow::Result<String> {
+    base_url(s, false)
+}
+
+/// A base URL as [`server_url`] checks it, with `https://` allowed too when `tls`: a
+/// course server is often reached across the internet, replicas never are.
+pub fn base_url(s: &str, tls: bool) -> anyhow::Result<String> {
+    let s = s.trim();
+    let url = reqwest::Url::parse(s).with_context(|| format!("`{s}` is not a URL"))?;
+    let scheme_ok = url.scheme() == "http" || (tls && url.scheme() == "https");
+    if !scheme_ok {
+        if tls {
+            bail!("`{s}`: give the server as http:// or https://");
+        }
+        bail!(
+            "`{s}`: only http:// servers are supported (raytile speaks plain HTTP to its replicas)"
+        );
+    }
+    if url.host_str().is_none_or(str::is_empty) || url.query().is_some() || url.fragment().is_some()
+    {
+        bail!("`{s}`: give a server as http(s)://host:port, with no query or fragment");
+    }
+    Ok(url.as_str().trim_end_matches('/').to_owned())
+}
+
+/// The builder every HTTP client of raytile starts from. reqwest is built without a
+/// crypto provider so that TLS runs on ring, which needs only a C compiler to build;
+/// this installs it first (a second installation is refused, harmlessly).
+pub fn client_builder() -> reqwest::ClientBuilder {
+    let _ = rustls::crypto::ring::default_provider().install_default();
+    reqwest::Client::builder()
 }
 
 /// A course server to talk to: its base URL, the client, the token.
@@ -61,10 +94,7 @@ impl Remote {
     pub fn new(args: &ServerArgs, timeout: Duration) -> anyhow::Result<Remote> {
         let base = base_url(&args.server, true)?;
         let base = Url::parse(&base).with_context(|| format!("`{base}` is not a URL"))?;
-        // reqwest is built without a crypto provider so that ring, which needs only a C
-        // compiler, is the one; installing it a second time is refused, harmlessly.
-        let _ = rustls::crypto::ring::default_provider().install_default();
-        let client = reqwest::Client::builder()
+        let client = client_builder()
             .timeout(timeout)
             .connect_timeout(CONNECT_TIMEOUT.min(timeout))
             .build()
@@ -188,6 +218,33 @@ pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn server_urls_are_plain_http_bases() {
+        assert_eq!(
+            server_url("http://10.0.0.1:8080").unwrap(),
+            "http://10.0.0.1:8080"
+        );
+        assert_eq!(
+            server_url(" http://lb/raytile/ ").unwrap(),
+            "http://lb/raytile"
+        );
+        for bad in ["https://lb", "lb:8080", "http://lb/?x=1", "", "ftp://x"] {
+            assert!(server_url(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn course_servers_may_be_https() {
+        assert_eq!(
+            base_url("https://grader.example.edu/raytile/", true).unwrap(),
+            "https://grader.example.edu/raytile"
+        );
+        assert!(base_url("https://lb", false).is_err());
+        for bad in ["ftp://x", "https://lb/?x=1", "grader:8080"] {
+            assert!(base_url(bad, true).is_err(), "{bad}");
+        }
+    }
 
     fn remote(server: &str, token: Option<&str>) -> Remote {
         let args = ServerArgs {

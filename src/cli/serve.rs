@@ -47,7 +47,7 @@ pub fn healthcheck(args: HealthcheckArgs) -> anyhow::Result<ExitCode> {
         .url
         .unwrap_or_else(|| default_health_url(std::env::var("RAYTILE_ADDR").ok().as_deref()));
     let probe = async {
-        let client = reqwest::Client::builder()
+        let client = super::remote::client_builder()
             .timeout(Duration::from_secs(args.timeout_seconds.max(1)))
             .build()?;
         let res = client.get(&url).send().await?;

@@ -142,7 +142,7 @@ fn start_nginx(children: &mut Children, dir: &Path, upstream_a: &str, upstream_b
 
 /// A client that goes straight to loopback, whatever proxy the environment names.
 fn client() -> reqwest::Client {
-    reqwest::Client::builder()
+    raytile::cli::remote::client_builder()
         .no_proxy()
         .timeout(REQUEST_TIMEOUT)
         .connect_timeout(Duration::from_secs(5))

@@ -99,6 +99,43 @@ fn an_unreachable_service_still_gets_a_results_file_in_every_form() {
     }
 }
 
+#[test]
+fn an_https_server_is_spoken_to_in_tls_and_a_plain_one_behind_it_is_a_results_file() {
+    // A plain-HTTP peer at an https:// URL: the client must attempt a TLS handshake
+    // (its crypto set up, no panic), fail it, and still write the results file.
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let server = format!("https://{}", listener.local_addr().unwrap());
+    std::thread::spawn(move || {
+        for stream in listener.incoming() {
+            let Ok(mut stream) = stream else { return };
+            let _ = stream.write_all(b"HTTP/1.1 400 Bad Request\r\nconnection: close\r\n\r\n");
+        }
+    });
+    let dir = tempfile::tempdir().unwrap();
+    let sub = some_files(dir.path());
+    let out = dir.path().join("results.json");
+    let (code, stderr) = submit(&[
+        "--server",
+        &server,
+        "--assignment",
+        "a1",
+        "--student",
+        "s1",
+        "--report",
+        "gradescope",
+        "--deadline",
+        "1",
+        "-o",
+        out.to_str().unwrap(),
+        sub.to_str().unwrap(),
+    ]);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let r = read_json(&out);
+    assert_eq!(r["score"], 0.0);
+    assert!(r.to_string().contains(UNREACHABLE), "{r}");
+}
+
 /// What a fake peer saw of one request.
 #[derive(Debug, Clone)]
 struct Seen {

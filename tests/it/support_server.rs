@@ -235,7 +235,7 @@ pub fn wait_exit(child: &mut std::process::Child, limit: Duration) -> std::proce
 
 /// A client with [`REQUEST_TIMEOUT`] and no connection reuse surprises.
 pub fn client() -> reqwest::Client {
-    reqwest::Client::builder()
+    raytile::cli::remote::client_builder()
         .timeout(REQUEST_TIMEOUT)
         .connect_timeout(Duration::from_secs(10))
         .build()
