@@ -29,6 +29,10 @@ use crate::store::assignments::{StoredAssignment, Submission};
 pub fn router() -> Router<AppState> {
     Router::new()
         .route("/v1/assignments/{id}/submissions", get(submissions))
+        .route(
+            "/v1/assignments/{id}/submissions/{sid}",
+            get(one_submission),
+        )
         .route("/v1/assignments/{id}/grades.csv", get(grades))
         .route("/v1/assignments/{id}/stats", get(stats))
 }
@@ -113,6 +117,38 @@ fn json_response(body: Vec<u8>) -> Response {
         body,
     )
         .into_response()
+}
+
+/// `GET /v1/assignments/{id}/submissions/{sid}`: one submission, as the listing shows
+/// it (where a recorded submission's `Location` points).
+async fn one_submission(
+    State(app): State<AppState>,
+    Path((id, sid)): Path<(String, String)>,
+    req: Request,
+) -> Result<Response, ApiError> {
+    if let Some((k, _)) = query_pairs(req.uri())?.into_iter().next() {
+        return Err(ApiError::BadRequest(format!(
+            "unknown query parameter `{k}`: this route takes none"
+        )));
+    }
+    negotiate(req.headers(), &["application/json"])?;
+    let deadline = deadline_of(&req, &app);
+    let (store, _) = instructor_at(&app, req.headers(), &id).await?;
+    let sub = store
+        .submission(&id, &sid)
+        .await
+        .map_err(store_error)?
+        .ok_or_else(|| {
+            ApiError::NotFound(format!("assignment `{id}` has no submission `{sid}`"))
+        })?;
+    let body = blocking(&app, deadline, move || {
+        let attempts = read_all(&id, vec![sub])?;
+        let view = attempts.first().map(Attempt::view);
+        serde_json::to_vec(&view)
+            .map_err(|e| ApiError::Internal(format!("cannot write the submission: {e}")))
+    })
+    .await??;
+    Ok(json_response(body))
 }
 
 /// `GET /v1/assignments/{id}/submissions[?student=S]`: every submission, oldest first,

@@ -410,6 +410,23 @@ impl Store {
         row.map(|r| submission(&r)).transpose()
     }
 
+    /// Submission `id` of `assignment`, if it has one by that id.
+    pub async fn submission(
+        &self,
+        assignment: &str,
+        id: &str,
+    ) -> Result<Option<Submission>, StoreError> {
+        let row = sqlx::query(
+            "SELECT id, revision, student, submitted_ms, result, score FROM submissions \
+             WHERE assignment_id = $1 AND id = $2",
+        )
+        .bind(assignment)
+        .bind(id)
+        .fetch_optional(self.pool())
+        .await?;
+        row.map(|r| submission(&r)).transpose()
+    }
+
     /// The submissions of an assignment, oldest first; only `student`'s with one.
     pub async fn submissions(
         &self,

@@ -191,8 +191,9 @@ async fn gradebook_flow(store: &[&str]) {
             ],
         ),
     ];
+    let mut locations = Vec::new();
     for (student, files) in sent {
-        let (answer, _, _) = submit(
+        let (answer, location, _) = submit(
             url,
             &id,
             &grader,
@@ -210,6 +211,7 @@ async fn gradebook_flow(store: &[&str]) {
             "{}",
             String::from_utf8_lossy(&answer.body)
         );
+        locations.push(location.expect("a recorded submission's Location"));
     }
 
     // The listing: every submission oldest first, each scene's outcome, the result.
@@ -245,6 +247,23 @@ async fn gradebook_flow(store: &[&str]) {
             .all(|s| s["revision"] == 2 && s["max_score"] == 10.0)
     );
     assert_eq!(all[1]["score"], 10.0);
+    // Each recorded submission's Location answers it, as the listing shows it.
+    let one_t = "/v1/assignments/{id}/submissions/{submission}";
+    for (i, loc) in locations.iter().enumerate() {
+        let one = read(url, loc, one_t, Some(&instructor)).await;
+        assert_eq!(one.status, 200, "{loc}");
+        assert_eq!(json_of(&one), all[i], "{loc}");
+    }
+    assert_eq!(
+        read(url, &locations[0], one_t, Some(&grader)).await.status,
+        403
+    );
+    assert_eq!(read(url, &locations[0], one_t, None).await.status, 401);
+    let unknown = format!("{subs_path}/0123abcd");
+    assert_eq!(
+        read(url, &unknown, one_t, Some(&instructor)).await.status,
+        404
+    );
     assert_eq!(all[0]["result"]["scenes"][0]["status"], "passed");
     // The hidden scene's stored result shows the instructor no more than the student.
     assert!(
