@@ -399,15 +399,8 @@ impl Store {
         assignment: &str,
         key: &str,
     ) -> Result<Option<Submission>, StoreError> {
-        let row = sqlx::query(
-            "SELECT id, revision, student, submitted_ms, result, score FROM submissions \
-             WHERE assignment_id = $1 AND idempotency_key = $2",
-        )
-        .bind(assignment)
-        .bind(key)
-        .fetch_optional(self.pool())
-        .await?;
-        row.map(|r| submission(&r)).transpose()
+        self.submission_where(assignment, "idempotency_key", key)
+            .await
     }
 
     /// Submission `id` of `assignment`, if it has one by that id.
@@ -416,14 +409,26 @@ impl Store {
         assignment: &str,
         id: &str,
     ) -> Result<Option<Submission>, StoreError> {
-        let row = sqlx::query(
+        self.submission_where(assignment, "id", id).await
+    }
+
+    /// The submission of `assignment` whose `column` (a unique one: `id`,
+    /// `idempotency_key`) is `value`.
+    async fn submission_where(
+        &self,
+        assignment: &str,
+        column: &'static str,
+        value: &str,
+    ) -> Result<Option<Submission>, StoreError> {
+        let sql = format!(
             "SELECT id, revision, student, submitted_ms, result, score FROM submissions \
-             WHERE assignment_id = $1 AND id = $2",
-        )
-        .bind(assignment)
-        .bind(id)
-        .fetch_optional(self.pool())
-        .await?;
+             WHERE assignment_id = $1 AND {column} = $2"
+        );
+        let row = sqlx::query(&sql)
+            .bind(assignment)
+            .bind(value)
+            .fetch_optional(self.pool())
+            .await?;
         row.map(|r| submission(&r)).transpose()
     }
 
