@@ -4,8 +4,8 @@ renders its references) against the next (which finds them cached), and submissi
 second with many clients at once.
 
     cargo build --release --locked
-    python3 bench/submissions.py --binary target/release/raytile
-    python3 bench/submissions.py --binary target/release/raytile \
+    python3 docs/bench/submissions.py --binary target/release/raytile
+    python3 docs/bench/submissions.py --binary target/release/raytile \
         --database postgres://raytile_test:raytile_test@127.0.0.1:5432/raytile_test
 
 It starts the server on a free port (with a fresh data folder, or the given PostgreSQL
