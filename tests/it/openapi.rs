@@ -173,6 +173,49 @@ fn scene_names() -> Vec<String> {
     names
 }
 
+/// Every local `$ref` of `v`, with the JSON pointer where it stands.
+fn local_refs(v: &Value, at: String, out: &mut Vec<(String, String)>) {
+    match v {
+        Value::Object(m) => {
+            for (k, x) in m {
+                if let Some(p) = x
+                    .as_str()
+                    .filter(|_| k == "$ref")
+                    .and_then(|r| r.strip_prefix('#'))
+                {
+                    out.push((at.clone(), p.to_owned()));
+                }
+                local_refs(
+                    x,
+                    format!("{at}/{}", k.replace('~', "~0").replace('/', "~1")),
+                    out,
+                );
+            }
+        }
+        Value::Array(a) => {
+            for (i, x) in a.iter().enumerate() {
+                local_refs(x, format!("{at}/{i}"), out);
+            }
+        }
+        _ => {}
+    }
+}
+
+#[test]
+fn every_local_reference_resolves() {
+    // A component written twice under one key (a second `parameters:` block) leaves
+    // the first one's members unresolvable; the YAML reader keeps only the last.
+    let doc = document();
+    let mut refs = Vec::new();
+    local_refs(&doc, String::new(), &mut refs);
+    assert!(refs.len() > 50, "{} local references", refs.len());
+    let broken: Vec<_> = refs
+        .iter()
+        .filter(|(_, p)| doc.pointer(p).is_none())
+        .collect();
+    assert!(broken.is_empty(), "unresolvable: {broken:?}");
+}
+
 #[test]
 fn the_document_is_openapi_3_1_and_its_schemas_compile() {
     let doc = document();
