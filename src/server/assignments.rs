@@ -846,25 +846,19 @@ async fn submit(
         result: &json,
         score,
     };
-    let recorded = match app.config.submissions_per_hour {
-        0 => match store.record_submission(&new).await.map_err(store_error)? {
-            (sub, true) => Recorded::New(sub),
-            (sub, false) => Recorded::Existing(sub),
-        },
-        // Checked again as it is recorded: submissions graded at the same time may
-        // have filled the hour meanwhile, and their verdicts are withheld.
-        limit => {
-            let now = crate::store::now_ms();
-            let window = Window {
-                limit,
-                since_ms: now - HOUR_MS,
-            };
-            store
-                .record_submission_within(&new, window)
-                .await
-                .map_err(store_error)?
-        }
+    // Checked again as it is recorded: submissions graded at the same time may have
+    // filled the hour meanwhile, and their verdicts are withheld.
+    let window = match app.config.submissions_per_hour {
+        0 => None,
+        limit => Some(Window {
+            limit,
+            since_ms: crate::store::now_ms() - HOUR_MS,
+        }),
     };
+    let recorded = store
+        .record_submission_within(&new, window)
+        .await
+        .map_err(store_error)?;
     let sub = match recorded {
         Recorded::New(sub) => sub,
         // A concurrent retry with the same key was recorded first: answer that one.

@@ -274,58 +274,23 @@ impl Store {
         &self,
         s: &NewSubmission<'_>,
     ) -> Result<(Submission, bool), StoreError> {
-        if let Some(key) = s.idempotency_key
-            && let Some(existing) = self.submission_by_key(s.assignment, key).await?
-        {
-            return Ok((existing, false));
-        }
-        let id = hex::encode(random_bytes::<16>()?);
-        let submitted_ms = now_ms();
-        let inserted = sqlx::query(
-            "INSERT INTO submissions (id, assignment_id, revision, student, idempotency_key, \
-             submitted_ms, result, score) VALUES ($1, $2, $3, $4, $5, $6, $7, $8)",
-        )
-        .bind(&id)
-        .bind(s.assignment)
-        .bind(s.revision)
-        .bind(s.student)
-        .bind(s.idempotency_key)
-        .bind(submitted_ms)
-        .bind(s.result)
-        .bind(s.score)
-        .execute(self.pool())
-        .await;
-        match (inserted, s.idempotency_key) {
-            (Ok(_), _) => Ok((
-                Submission {
-                    id,
-                    revision: s.revision,
-                    student: s.student.to_owned(),
-                    submitted_ms,
-                    result: s.result.to_owned(),
-                    score: s.score,
-                },
-                true,
+        match self.record_submission_within(s, None).await? {
+            Recorded::New(sub) => Ok((sub, true)),
+            Recorded::Existing(sub) => Ok((sub, false)),
+            Recorded::Limited { .. } => Err(StoreError::Corrupt(
+                "a submission without a limit was refused by one".into(),
             )),
-            // A concurrent retry with the same key committed first: return its row.
-            (Err(sqlx::Error::Database(e)), Some(key)) if e.is_unique_violation() => {
-                let existing = self.submission_by_key(s.assignment, key).await?;
-                existing
-                    .map(|e| (e, false))
-                    .ok_or_else(|| StoreError::Corrupt("a conflicting key without its row".into()))
-            }
-            (Err(e), _) => Err(e.into()),
         }
     }
 
-    /// [`Store::record_submission`] within `window`: the count and the insert are one
-    /// statement (SQLite runs statements one at a time; on PostgreSQL a transaction
-    /// lock per student and assignment orders them), so concurrent submissions cannot
-    /// together pass the limit.
+    /// [`Store::record_submission`] within `window`, if there is one: the count and the
+    /// insert are one statement (SQLite runs statements one at a time; on PostgreSQL a
+    /// transaction lock per student and assignment orders them), so concurrent
+    /// submissions cannot together pass the limit.
     pub async fn record_submission_within(
         &self,
         s: &NewSubmission<'_>,
-        window: Window,
+        window: Option<Window>,
     ) -> Result<Recorded, StoreError> {
         if let Some(key) = s.idempotency_key
             && let Some(existing) = self.submission_by_key(s.assignment, key).await?
@@ -335,7 +300,9 @@ impl Store {
         let id = hex::encode(random_bytes::<16>()?);
         let submitted_ms = now_ms();
         let mut tx = self.pool().begin().await?;
-        if self.backend() == super::Backend::Postgres {
+        // No window: one that starts after every time there is, so it counts nothing.
+        let (since_ms, limit) = window.map_or((i64::MAX, 1), |w| (w.since_ms, i64::from(w.limit)));
+        if window.is_some() && self.backend() == super::Backend::Postgres {
             sqlx::query("SELECT pg_advisory_xact_lock(hashtext($1))")
                 .bind(format!("submissions\n{}\n{}", s.assignment, s.student))
                 .execute(&mut *tx)
@@ -356,8 +323,8 @@ impl Store {
         .bind(submitted_ms)
         .bind(s.result)
         .bind(s.score)
-        .bind(window.since_ms)
-        .bind(i64::from(window.limit))
+        .bind(since_ms)
+        .bind(limit)
         .execute(&mut *tx)
         .await;
         match (inserted, s.idempotency_key) {
@@ -374,8 +341,9 @@ impl Store {
             }
             (Ok(_), _) => {
                 tx.rollback().await?;
+                let limit = window.map_or(0, |w| w.limit);
                 let times = self
-                    .recent_submission_times(s.assignment, s.student, window.since_ms, window.limit)
+                    .recent_submission_times(s.assignment, s.student, since_ms, limit)
                     .await?;
                 Ok(Recorded::Limited {
                     oldest_ms: times.last().copied().unwrap_or(submitted_ms),
@@ -555,25 +523,25 @@ mod tests {
             since_ms: 0,
         };
         let r = store
-            .record_submission_within(&new("s1", Some("k3")), window)
+            .record_submission_within(&new("s1", Some("k3")), Some(window))
             .await
             .unwrap();
         let Recorded::New(fourth) = r else {
             panic!("{r:?}")
         };
         let r = store
-            .record_submission_within(&new("s1", Some("k3")), window)
+            .record_submission_within(&new("s1", Some("k3")), Some(window))
             .await
             .unwrap();
         assert_eq!(r, Recorded::Existing(fourth));
         let r = store
-            .record_submission_within(&new("s1", None), window)
+            .record_submission_within(&new("s1", None), Some(window))
             .await
             .unwrap();
         let oldest = store.submissions(&id, Some("s1")).await.unwrap()[0].submitted_ms;
         assert_eq!(r, Recorded::Limited { oldest_ms: oldest });
         let r = store
-            .record_submission_within(&new("s2", None), window)
+            .record_submission_within(&new("s2", None), Some(window))
             .await
             .unwrap();
         assert!(matches!(r, Recorded::New(_)), "{r:?}");
