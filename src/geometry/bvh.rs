@@ -1,20 +1,17 @@
-//! A bounding volume hierarchy: binned surface-area-heuristic build, collapsed into
-//! 4-wide nodes whose four child boxes one SIMD slab test checks at once, nearest-child-
-//! first traversal. Used over a scene's objects (world space) and over a mesh's
-//! triangles (object space), so the cost of a ray grows with the logarithm of the number
-//! of primitives.
+//! A bounding volume hierarchy: binned surface-area-heuristic build, flat node arrays
+//! whose interior nodes hold both children's boxes, nearer-child-first traversal. Used over a scene's objects (world space) and over a
+//! mesh's triangles (object space), so the cost of a ray grows with the logarithm of the
+//! number of primitives.
 //!
-//! Boxes are padded by a tiny relative margin when built, rounded outward to single
-//! precision in the wide nodes, and tested conservatively ([`SlabRay::enter4`]), so the
-//! hierarchy never loses a hit that testing every primitive would find. Primitives
-//! themselves are tested exactly, in `f64`, by the caller's leaf function, which also
-//! resolves ties (nodes are entered when their entry `λ` is *at most* the best so far,
-//! so a tie in a later node is still seen).
+//! Boxes are padded by a tiny relative margin and the slab test rounds its far distance
+//! up, so the hierarchy never loses a hit that testing every primitive would find; ties
+//! are resolved by the caller's leaf function (nodes are entered when their entry `λ`
+//! is *at most* the best so far, so a tie in a later node is still seen).
 
 use arrayvec::ArrayVec;
 use glam::DVec3;
 
-use super::bounds::{Aabb, Boxes4, SlabRay};
+use super::bounds::{Aabb, SlabRay};
 
 /// Primitives per leaf at most, when the SAH would rather not split.
 const MAX_LEAF_PRIMS: usize = 4;
@@ -22,12 +19,9 @@ const MAX_LEAF_PRIMS: usize = 4;
 const SAH_BINS: usize = 12;
 /// Below this depth the SAH is used; deeper, a plain median split bounds the depth.
 const SAH_MAX_DEPTH: usize = 48;
-/// Traversal stack size: a wide node pushes at most three children, and the tree is no
-/// deeper than the binary one it collapses, whose depth `SAH_MAX_DEPTH` plus a median
-/// tree of 2³² leaves bounds.
-const STACK_SIZE: usize = 3 * 96;
+/// Traversal stack size: enough for `SAH_MAX_DEPTH` plus a median tree of 2³² leaves.
+const STACK_SIZE: usize = 96;
 
-/// A node of the binary tree as built.
 #[derive(Debug, Clone, Copy)]
 struct Node {
     min: DVec3,
@@ -39,15 +33,20 @@ struct Node {
     count: u16,
 }
 
-/// A node for traversal: up to four children, their boxes side by side so that one
-/// slab test checks them all. Two cache lines.
+/// An interior node for traversal: the boxes of both children, so one visit tests
+/// both and goes to the nearer first (and skips a child the ray misses without
+/// pushing it).
+///
+/// Boxes are stored axis by axis with the two children side by side, so that both slab
+/// tests run as two-lane vector operations.
 #[derive(Debug, Clone, Copy)]
-#[repr(C, align(64))]
-struct Wide {
-    boxes: Boxes4,
-    /// Each child: an index into `wide`, or `LEAF | index` into `leaves`; an unused lane
-    /// holds the empty box, which no ray enters, so its reference is never read.
-    child: [u32; 4],
+struct Inner {
+    /// `min[axis][child]`.
+    min: [[f64; 2]; 3],
+    /// `max[axis][child]`.
+    max: [[f64; 2]; 3],
+    /// Each child: an index into `inner`, or `LEAF | index` into `leaves`.
+    child: [u32; 2],
 }
 
 /// Marks a child reference as a leaf.
@@ -56,21 +55,15 @@ const LEAF: u32 = 1 << 31;
 /// A BVH over primitives given by their bounds.
 #[derive(Debug, Clone)]
 pub struct Bvh {
+    /// The tree as built, each node with its own box (kept for its bounds and shape).
+    nodes: Vec<Node>,
     /// The tree as traversed.
-    wide: Vec<Wide>,
+    inner: Vec<Inner>,
     /// Leaves: `(first, count)` into `order`.
     leaves: Vec<(u32, u32)>,
-    /// The root: an index into `wide` or `LEAF | index` (when the tree is one leaf).
+    /// The root: an index into `inner` or `LEAF | index` (when the tree is one leaf).
     root: u32,
-    /// The bounds of everything held (padded).
-    bounds: Aabb,
     /// Primitive indices in leaf order.
-    order: Vec<u32>,
-}
-
-/// The binary tree being built, before it is collapsed.
-struct Builder {
-    nodes: Vec<Node>,
     order: Vec<u32>,
 }
 
@@ -108,77 +101,39 @@ impl Bvh {
                 }
             })
             .collect();
-        let mut builder = Builder {
-            nodes: Vec::with_capacity(2 * prims.len() / MAX_LEAF_PRIMS + 1),
-            order: Vec::with_capacity(prims.len()),
-        };
         let mut bvh = Bvh {
-            wide: Vec::new(),
+            nodes: Vec::with_capacity(2 * prims.len() / MAX_LEAF_PRIMS + 1),
+            inner: Vec::new(),
             leaves: Vec::new(),
             root: LEAF,
-            bounds: Aabb::EMPTY,
-            order: Vec::new(),
+            order: Vec::with_capacity(prims.len()),
         };
         if !prims.is_empty() {
-            builder.build_node(&mut prims, 0);
-            bvh.bounds = Aabb {
-                min: builder.nodes[0].min,
-                max: builder.nodes[0].max,
-            };
-            bvh.root = bvh.collapse(&builder.nodes, 0);
+            bvh.build_node(&mut prims, 0);
+            bvh.root = bvh.flatten(0);
         }
-        bvh.order = builder.order;
         bvh
     }
 
-    /// Converts node `i` of the binary tree `nodes` (and its subtree) to wide nodes;
-    /// returns its reference. An interior node takes up to four descendants as its
-    /// children: its two, then repeatedly the two of the interior child with the
-    /// largest surface area in place of that child (the one most rays enter).
-    fn collapse(&mut self, nodes: &[Node], i: usize) -> u32 {
-        let n = nodes[i];
+    /// Converts node `i` of the built tree (and its subtree) to the traversal layout;
+    /// returns its reference.
+    fn flatten(&mut self, i: usize) -> u32 {
+        let n = self.nodes[i];
         if n.count > 0 {
             self.leaves.push((n.offset, n.count as u32));
             return LEAF | (self.leaves.len() as u32 - 1);
         }
-        let area = |k: usize| {
-            Aabb {
-                min: nodes[k].min,
-                max: nodes[k].max,
-            }
-            .half_area()
-        };
-        let mut kids: ArrayVec<usize, 4> = ArrayVec::new();
-        kids.push(i + 1);
-        kids.push(n.offset as usize);
-        while kids.len() < 4 {
-            let open = (0..kids.len())
-                .filter(|&j| nodes[kids[j]].count == 0)
-                .max_by(|&x, &y| area(kids[x]).total_cmp(&area(kids[y])));
-            let Some(j) = open else { break };
-            let k = kids[j];
-            kids[j] = k + 1;
-            kids.push(nodes[k].offset as usize);
-        }
-        let me = self.wide.len();
-        let mut node = Wide {
-            boxes: Boxes4::EMPTY,
-            child: [0; 4],
-        };
-        for (lane, &k) in kids.iter().enumerate() {
-            node.boxes.set(
-                lane,
-                &Aabb {
-                    min: nodes[k].min,
-                    max: nodes[k].max,
-                },
-            );
-        }
-        self.wide.push(node);
-        for (lane, &k) in kids.iter().enumerate() {
-            let c = self.collapse(nodes, k);
-            self.wide[me].child[lane] = c;
-        }
+        let me = self.inner.len();
+        let (l, r) = (i + 1, n.offset as usize);
+        let (a, b) = (self.nodes[l], self.nodes[r]);
+        self.inner.push(Inner {
+            min: [[a.min.x, b.min.x], [a.min.y, b.min.y], [a.min.z, b.min.z]],
+            max: [[a.max.x, b.max.x], [a.max.y, b.max.y], [a.max.z, b.max.z]],
+            child: [0, 0],
+        });
+        let cl = self.flatten(l);
+        let cr = self.flatten(r);
+        self.inner[me].child = [cl, cr];
         me as u32
     }
 
@@ -208,164 +163,12 @@ impl Bvh {
 
     /// The bounds of everything held.
     pub fn bounds(&self) -> Aabb {
-        self.bounds
+        self.nodes.first().map_or(Aabb::EMPTY, |n| Aabb {
+            min: n.min,
+            max: n.max,
+        })
     }
 
-    /// Whether a ray can reach anything at all: false for an empty tree, and for a
-    /// tree of one leaf whose box the ray misses (a wide root tests its children's
-    /// boxes itself).
-    #[inline(always)]
-    fn reachable(&self, ray: &SlabRay, t_min: f64, t_max: f64) -> bool {
-        !self.order.is_empty()
-            && (self.root & LEAF == 0
-                || ray
-                    .enter(self.bounds.min, self.bounds.max, t_min, t_max)
-                    .is_some())
-    }
-
-    /// The primitives of leaf reference `r`.
-    #[inline(always)]
-    fn leaf(&self, r: u32) -> &[u32] {
-        let (start, count) = self.leaves[(r & !LEAF) as usize];
-        &self.order[start as usize..(start + count) as usize]
-    }
-
-    /// Visits, near first, every primitive whose box the ray enters before the best
-    /// `λ` so far. `leaf(prim, t_max)` tests one primitive and returns the new best `λ`
-    /// (or `t_max` unchanged). `t_min` is not negative.
-    #[inline]
-    pub fn closest<F: FnMut(u32, f64) -> f64>(
-        &self,
-        ray: &SlabRay,
-        t_min: f64,
-        mut t_max: f64,
-        mut leaf: F,
-    ) -> f64 {
-        if !self.reachable(ray, t_min, t_max) {
-            return t_max;
-        }
-        // ArrayVec: a fixed stack that is not zeroed on every call (this runs per ray).
-        let mut stack: ArrayVec<(u32, f32), STACK_SIZE> = ArrayVec::new();
-        let mut cur = self.root;
-        loop {
-            if cur & LEAF != 0 {
-                for &p in self.leaf(cur) {
-                    t_max = leaf(p, t_max);
-                }
-            } else {
-                let n = &self.wide[cur as usize];
-                let (mut mask, near) = ray.enter4(&n.boxes, t_min, t_max);
-                if mask != 0 {
-                    if mask & (mask - 1) == 0 {
-                        cur = n.child[mask.trailing_zeros() as usize];
-                        continue;
-                    }
-                    let first = mask.trailing_zeros() as usize;
-                    let rest = mask & (mask - 1);
-                    if rest & (rest - 1) == 0 {
-                        // Two entered (the commonest case): the nearer next.
-                        let second = rest.trailing_zeros() as usize;
-                        let (a, b) = if near[second] < near[first] {
-                            (second, first)
-                        } else {
-                            (first, second)
-                        };
-                        let _ = stack.try_push((n.child[b], near[b]));
-                        cur = n.child[a];
-                        continue;
-                    }
-                    // Three or four: the nearest next, the others onto the stack, the
-                    // farthest deepest.
-                    let mut hit: ArrayVec<(f32, u32), 4> = ArrayVec::new();
-                    while mask != 0 {
-                        let lane = mask.trailing_zeros() as usize;
-                        mask &= mask - 1;
-                        hit.push((near[lane], n.child[lane]));
-                    }
-                    for i in 1..hit.len() {
-                        let mut j = i;
-                        while j > 0 && hit[j - 1].0 < hit[j].0 {
-                            hit.swap(j - 1, j);
-                            j -= 1;
-                        }
-                    }
-                    if let Some((_, nearest)) = hit.pop() {
-                        for &(t, c) in &hit {
-                            // A full stack drops the subtree: unreachable within the
-                            // depth bound the build guarantees.
-                            let _ = stack.try_push((c, t));
-                        }
-                        cur = nearest;
-                        continue;
-                    }
-                }
-            }
-            // Pop the next subtree that may still hold something nearer (or tied).
-            loop {
-                let Some((node, t)) = stack.pop() else {
-                    return t_max;
-                };
-                if t as f64 <= t_max {
-                    cur = node;
-                    break;
-                }
-            }
-        }
-    }
-
-    /// Whether `leaf(prim)` is true for some primitive whose box the ray enters within
-    /// `(t_min, t_max)`; stops at the first. `t_min` is not negative.
-    #[inline]
-    pub fn any<F: FnMut(u32) -> bool>(
-        &self,
-        ray: &SlabRay,
-        t_min: f64,
-        t_max: f64,
-        mut leaf: F,
-    ) -> bool {
-        if !self.reachable(ray, t_min, t_max) {
-            return false;
-        }
-        let mut stack: ArrayVec<u32, STACK_SIZE> = ArrayVec::new();
-        let mut cur = self.root;
-        loop {
-            if cur & LEAF != 0 {
-                if self.leaf(cur).iter().any(|&p| leaf(p)) {
-                    return true;
-                }
-            } else {
-                let n = &self.wide[cur as usize];
-                let (mut mask, _) = ray.enter4(&n.boxes, t_min, t_max);
-                if mask != 0 {
-                    cur = n.child[mask.trailing_zeros() as usize];
-                    mask &= mask - 1;
-                    while mask != 0 {
-                        let _ = stack.try_push(n.child[mask.trailing_zeros() as usize]);
-                        mask &= mask - 1;
-                    }
-                    continue;
-                }
-            }
-            match stack.pop() {
-                Some(c) => cur = c,
-                None => return false,
-            }
-        }
-    }
-
-    /// Primitives whose box the ray enters within `(t_min, t_max)`, in leaf order: the
-    /// candidates a ray is tested against (for explaining a pixel).
-    pub fn candidates(&self, ray: &SlabRay, t_min: f64, t_max: f64) -> Vec<u32> {
-        let mut out = Vec::new();
-        self.any(ray, t_min, t_max, |p| {
-            out.push(p);
-            false
-        });
-        out
-    }
-}
-
-impl Builder {
     fn build_node(&mut self, prims: &mut [BuildPrim], depth: usize) {
         let bounds = prims.iter().fold(Aabb::EMPTY, |b, p| b.union(&p.bounds));
         let me = self.nodes.len();
@@ -469,6 +272,129 @@ impl Builder {
             }
         }
         Some((axis, mid))
+    }
+
+    /// Visits, near first, every primitive whose box the ray enters before the best
+    /// `λ` so far. `leaf(prim, t_max)` tests one primitive and returns the new best `λ`
+    /// (or `t_max` unchanged).
+    #[inline]
+    pub fn closest<F: FnMut(u32, f64) -> f64>(
+        &self,
+        ray: &SlabRay,
+        t_min: f64,
+        mut t_max: f64,
+        mut leaf: F,
+    ) -> f64 {
+        let Some(root) = self.nodes.first() else {
+            return t_max;
+        };
+        if ray.enter(root.min, root.max, t_min, t_max).is_none() {
+            return t_max;
+        }
+        // ArrayVec: a fixed stack that is not zeroed on every call (this runs per ray).
+        let mut stack: ArrayVec<(u32, f64), STACK_SIZE> = ArrayVec::new();
+        let mut cur = self.root;
+        loop {
+            if cur & LEAF != 0 {
+                let (start, count) = self.leaves[(cur & !LEAF) as usize];
+                for &p in &self.order[start as usize..(start + count) as usize] {
+                    t_max = leaf(p, t_max);
+                }
+            } else {
+                let n = &self.inner[cur as usize];
+                let (h0, h1) = ray.enter2(&n.min, &n.max, t_min, t_max);
+                match (h0, h1) {
+                    (Some(a), Some(b)) => {
+                        let (near, far, t_far) = if a <= b {
+                            (n.child[0], n.child[1], b)
+                        } else {
+                            (n.child[1], n.child[0], a)
+                        };
+                        // A full stack drops the far subtree: unreachable within the
+                        // depth bound the build guarantees.
+                        let _ = stack.try_push((far, t_far));
+                        cur = near;
+                        continue;
+                    }
+                    (Some(_), None) => {
+                        cur = n.child[0];
+                        continue;
+                    }
+                    (None, Some(_)) => {
+                        cur = n.child[1];
+                        continue;
+                    }
+                    (None, None) => {}
+                }
+            }
+            // Pop the next subtree that may still hold something nearer (or tied).
+            loop {
+                let Some((node, t)) = stack.pop() else {
+                    return t_max;
+                };
+                if t <= t_max {
+                    cur = node;
+                    break;
+                }
+            }
+        }
+    }
+
+    /// Whether `leaf(prim)` is true for some primitive whose box the ray enters within
+    /// `(t_min, t_max)`; stops at the first.
+    #[inline]
+    pub fn any<F: FnMut(u32) -> bool>(
+        &self,
+        ray: &SlabRay,
+        t_min: f64,
+        t_max: f64,
+        mut leaf: F,
+    ) -> bool {
+        let Some(root) = self.nodes.first() else {
+            return false;
+        };
+        if ray.enter(root.min, root.max, t_min, t_max).is_none() {
+            return false;
+        }
+        let mut stack: ArrayVec<u32, STACK_SIZE> = ArrayVec::new();
+        let mut cur = self.root;
+        loop {
+            if cur & LEAF != 0 {
+                let (start, count) = self.leaves[(cur & !LEAF) as usize];
+                if self.order[start as usize..(start + count) as usize]
+                    .iter()
+                    .any(|&p| leaf(p))
+                {
+                    return true;
+                }
+            } else {
+                let n = &self.inner[cur as usize];
+                let (h0, h1) = ray.enter2(&n.min, &n.max, t_min, t_max);
+                let (h0, h1) = (h0.is_some(), h1.is_some());
+                if h0 || h1 {
+                    if h0 && h1 {
+                        let _ = stack.try_push(n.child[1]);
+                    }
+                    cur = if h0 { n.child[0] } else { n.child[1] };
+                    continue;
+                }
+            }
+            match stack.pop() {
+                Some(c) => cur = c,
+                None => return false,
+            }
+        }
+    }
+
+    /// Primitives whose box the ray enters within `(t_min, t_max)`, in leaf order: the
+    /// candidates a ray is tested against (for explaining a pixel).
+    pub fn candidates(&self, ray: &SlabRay, t_min: f64, t_max: f64) -> Vec<u32> {
+        let mut out = Vec::new();
+        self.any(ray, t_min, t_max, |p| {
+            out.push(p);
+            false
+        });
+        out
     }
 }
 
