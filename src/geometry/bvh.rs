@@ -19,6 +19,9 @@ const MAX_LEAF_PRIMS: usize = 4;
 const SAH_BINS: usize = 12;
 /// Below this depth the SAH is used; deeper, a plain median split bounds the depth.
 const SAH_MAX_DEPTH: usize = 48;
+/// Subtrees of at least this many primitives have their two halves built in parallel
+/// (the tree is the same): below it, a task would cost more than it saves.
+const PARALLEL_PRIMS: usize = 8192;
 /// Traversal stack size: enough for `SAH_MAX_DEPTH` plus a median tree of 2³² leaves.
 const STACK_SIZE: usize = 96;
 
@@ -101,15 +104,19 @@ impl Bvh {
                 }
             })
             .collect();
+        let built = if prims.is_empty() {
+            Builder::default()
+        } else {
+            Builder::subtree(&mut prims, 0, PARALLEL_PRIMS)
+        };
         let mut bvh = Bvh {
-            nodes: Vec::with_capacity(2 * prims.len() / MAX_LEAF_PRIMS + 1),
+            nodes: built.nodes,
             inner: Vec::new(),
             leaves: Vec::new(),
             root: LEAF,
-            order: Vec::with_capacity(prims.len()),
+            order: built.order,
         };
-        if !prims.is_empty() {
-            bvh.build_node(&mut prims, 0);
+        if !bvh.nodes.is_empty() {
             bvh.root = bvh.flatten(0);
         }
         bvh
@@ -167,111 +174,6 @@ impl Bvh {
             min: n.min,
             max: n.max,
         })
-    }
-
-    fn build_node(&mut self, prims: &mut [BuildPrim], depth: usize) {
-        let bounds = prims.iter().fold(Aabb::EMPTY, |b, p| b.union(&p.bounds));
-        let me = self.nodes.len();
-        self.nodes.push(Node {
-            min: bounds.min,
-            max: bounds.max,
-            offset: 0,
-            count: 0,
-        });
-        let split = if prims.len() <= 1 {
-            None
-        } else {
-            self.choose_split(prims, &bounds, depth)
-        };
-        match split {
-            None => {
-                self.nodes[me].offset = self.order.len() as u32;
-                self.nodes[me].count = prims.len() as u16;
-                self.order.extend(prims.iter().map(|p| p.index));
-            }
-            Some((_axis, mid)) => {
-                let (left, right) = prims.split_at_mut(mid);
-                self.build_node(left, depth + 1);
-                self.nodes[me].offset = self.nodes.len() as u32;
-                self.build_node(right, depth + 1);
-            }
-        }
-    }
-
-    /// Partitions `prims` and returns the axis and the split index, or `None` for a leaf.
-    fn choose_split(
-        &self,
-        prims: &mut [BuildPrim],
-        bounds: &Aabb,
-        depth: usize,
-    ) -> Option<(usize, usize)> {
-        let cb = prims.iter().fold(Aabb::EMPTY, |b, p| b.grow(p.centroid));
-        let extent = cb.max - cb.min;
-        let axis = if extent.x >= extent.y && extent.x >= extent.z {
-            0
-        } else if extent.y >= extent.z {
-            1
-        } else {
-            2
-        };
-        let n = prims.len();
-        if extent[axis] <= 0.0 || depth >= SAH_MAX_DEPTH {
-            if n <= MAX_LEAF_PRIMS && extent[axis] <= 0.0 {
-                return None;
-            }
-            // All centroids coincide, or the tree is deep: split at the median index.
-            return Some(median_split(prims, axis));
-        }
-        let bin_of = |c: f64| {
-            (((c - cb.min[axis]) / extent[axis] * SAH_BINS as f64) as usize).min(SAH_BINS - 1)
-        };
-        let mut counts = [0usize; SAH_BINS];
-        let mut boxes = [Aabb::EMPTY; SAH_BINS];
-        for p in prims.iter() {
-            let b = bin_of(p.centroid[axis]);
-            counts[b] += 1;
-            boxes[b] = boxes[b].union(&p.bounds);
-        }
-        let mut right_area = [0.0; SAH_BINS];
-        let (mut acc, mut acc_n) = (Aabb::EMPTY, 0);
-        let mut right_n = [0usize; SAH_BINS];
-        for i in (1..SAH_BINS).rev() {
-            acc = acc.union(&boxes[i]);
-            acc_n += counts[i];
-            right_area[i] = acc.half_area();
-            right_n[i] = acc_n;
-        }
-        let (mut best_cost, mut best_bin) = (f64::INFINITY, 0);
-        let (mut left, mut left_n) = (Aabb::EMPTY, 0);
-        for i in 1..SAH_BINS {
-            left = left.union(&boxes[i - 1]);
-            left_n += counts[i - 1];
-            if left_n == 0 || right_n[i] == 0 {
-                continue;
-            }
-            let cost = left.half_area() * left_n as f64 + right_area[i] * right_n[i] as f64;
-            if cost < best_cost {
-                best_cost = cost;
-                best_bin = i;
-            }
-        }
-        // Traversal costs about as much as one primitive test.
-        let leaf_cost = bounds.half_area() * n as f64;
-        let split_cost = bounds.half_area() + best_cost;
-        if best_bin == 0 || (n <= MAX_LEAF_PRIMS && leaf_cost <= split_cost) {
-            if n <= MAX_LEAF_PRIMS {
-                return None;
-            }
-            return Some(median_split(prims, axis));
-        }
-        let mut mid = 0;
-        for i in 0..n {
-            if bin_of(prims[i].centroid[axis]) < best_bin {
-                prims.swap(i, mid);
-                mid += 1;
-            }
-        }
-        Some((axis, mid))
     }
 
     /// Visits, near first, every primitive whose box the ray enters before the best
@@ -398,6 +300,156 @@ impl Bvh {
     }
 }
 
+/// The binary tree being built: nodes in depth-first order (a node, its first subtree,
+/// its second), and the primitive indices in leaf order.
+#[derive(Default)]
+struct Builder {
+    nodes: Vec<Node>,
+    order: Vec<u32>,
+    parallel_from: usize,
+}
+
+impl Builder {
+    /// The tree over `prims`, its root at `depth`, the halves of subtrees of at least
+    /// `parallel_from` primitives built in parallel.
+    fn subtree(prims: &mut [BuildPrim], depth: usize, parallel_from: usize) -> Builder {
+        let mut b = Builder {
+            nodes: Vec::with_capacity(2 * prims.len() / MAX_LEAF_PRIMS + 1),
+            order: Vec::with_capacity(prims.len()),
+            parallel_from,
+        };
+        b.build_node(prims, depth);
+        b
+    }
+
+    /// Appends a subtree built on its own, moving its references to where its nodes
+    /// and primitives now stand: the layout is the one building it in place gives.
+    fn append(&mut self, sub: Builder) {
+        let (nodes, order) = (self.nodes.len() as u32, self.order.len() as u32);
+        self.nodes.extend(sub.nodes.into_iter().map(|mut n| {
+            n.offset += if n.count > 0 { order } else { nodes };
+            n
+        }));
+        self.order.extend(sub.order);
+    }
+
+    fn build_node(&mut self, prims: &mut [BuildPrim], depth: usize) {
+        let bounds = prims.iter().fold(Aabb::EMPTY, |b, p| b.union(&p.bounds));
+        let me = self.nodes.len();
+        self.nodes.push(Node {
+            min: bounds.min,
+            max: bounds.max,
+            offset: 0,
+            count: 0,
+        });
+        let split = if prims.len() <= 1 {
+            None
+        } else {
+            self.choose_split(prims, &bounds, depth)
+        };
+        match split {
+            None => {
+                self.nodes[me].offset = self.order.len() as u32;
+                self.nodes[me].count = prims.len() as u16;
+                self.order.extend(prims.iter().map(|p| p.index));
+            }
+            Some((_axis, mid)) => {
+                let parallel = prims.len() >= self.parallel_from;
+                let (left, right) = prims.split_at_mut(mid);
+                if parallel {
+                    let (l, r) = rayon::join(
+                        || Builder::subtree(left, depth + 1, self.parallel_from),
+                        || Builder::subtree(right, depth + 1, self.parallel_from),
+                    );
+                    self.append(l);
+                    self.nodes[me].offset = self.nodes.len() as u32;
+                    self.append(r);
+                } else {
+                    self.build_node(left, depth + 1);
+                    self.nodes[me].offset = self.nodes.len() as u32;
+                    self.build_node(right, depth + 1);
+                }
+            }
+        }
+    }
+
+    /// Partitions `prims` and returns the axis and the split index, or `None` for a leaf.
+    fn choose_split(
+        &self,
+        prims: &mut [BuildPrim],
+        bounds: &Aabb,
+        depth: usize,
+    ) -> Option<(usize, usize)> {
+        let cb = prims.iter().fold(Aabb::EMPTY, |b, p| b.grow(p.centroid));
+        let extent = cb.max - cb.min;
+        let axis = if extent.x >= extent.y && extent.x >= extent.z {
+            0
+        } else if extent.y >= extent.z {
+            1
+        } else {
+            2
+        };
+        let n = prims.len();
+        if extent[axis] <= 0.0 || depth >= SAH_MAX_DEPTH {
+            if n <= MAX_LEAF_PRIMS && extent[axis] <= 0.0 {
+                return None;
+            }
+            // All centroids coincide, or the tree is deep: split at the median index.
+            return Some(median_split(prims, axis));
+        }
+        let bin_of = |c: f64| {
+            (((c - cb.min[axis]) / extent[axis] * SAH_BINS as f64) as usize).min(SAH_BINS - 1)
+        };
+        let mut counts = [0usize; SAH_BINS];
+        let mut boxes = [Aabb::EMPTY; SAH_BINS];
+        for p in prims.iter() {
+            let b = bin_of(p.centroid[axis]);
+            counts[b] += 1;
+            boxes[b] = boxes[b].union(&p.bounds);
+        }
+        let mut right_area = [0.0; SAH_BINS];
+        let (mut acc, mut acc_n) = (Aabb::EMPTY, 0);
+        let mut right_n = [0usize; SAH_BINS];
+        for i in (1..SAH_BINS).rev() {
+            acc = acc.union(&boxes[i]);
+            acc_n += counts[i];
+            right_area[i] = acc.half_area();
+            right_n[i] = acc_n;
+        }
+        let (mut best_cost, mut best_bin) = (f64::INFINITY, 0);
+        let (mut left, mut left_n) = (Aabb::EMPTY, 0);
+        for i in 1..SAH_BINS {
+            left = left.union(&boxes[i - 1]);
+            left_n += counts[i - 1];
+            if left_n == 0 || right_n[i] == 0 {
+                continue;
+            }
+            let cost = left.half_area() * left_n as f64 + right_area[i] * right_n[i] as f64;
+            if cost < best_cost {
+                best_cost = cost;
+                best_bin = i;
+            }
+        }
+        // Traversal costs about as much as one primitive test.
+        let leaf_cost = bounds.half_area() * n as f64;
+        let split_cost = bounds.half_area() + best_cost;
+        if best_bin == 0 || (n <= MAX_LEAF_PRIMS && leaf_cost <= split_cost) {
+            if n <= MAX_LEAF_PRIMS {
+                return None;
+            }
+            return Some(median_split(prims, axis));
+        }
+        let mut mid = 0;
+        for i in 0..n {
+            if bin_of(prims[i].centroid[axis]) < best_bin {
+                prims.swap(i, mid);
+                mid += 1;
+            }
+        }
+        Some((axis, mid))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -428,6 +480,52 @@ mod tests {
             tested < 20,
             "near-first traversal should prune, tested {tested}"
         );
+    }
+
+    #[test]
+    fn halves_built_in_parallel_give_the_tree_built_in_one_piece() {
+        // Clustered boxes of many sizes, so that the SAH, the median splits and
+        // leaves of every size all occur.
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let boxes: Vec<Aabb> = (0..30_000)
+            .map(|i| {
+                let c = DVec3::new(next(), next(), next()) * if i % 3 == 0 { 100.0 } else { 5.0 };
+                Aabb {
+                    min: c,
+                    max: c + DVec3::new(next(), next(), next()) * 0.3,
+                }
+            })
+            .collect();
+        let prims = || -> Vec<BuildPrim> {
+            boxes
+                .iter()
+                .enumerate()
+                .map(|(i, b)| BuildPrim {
+                    bounds: b.padded(),
+                    centroid: b.padded().centroid(),
+                    index: i as u32,
+                })
+                .collect()
+        };
+        let whole = Builder::subtree(&mut prims(), 0, usize::MAX);
+        for parallel_from in [2, 1000, PARALLEL_PRIMS] {
+            let split = Builder::subtree(&mut prims(), 0, parallel_from);
+            assert_eq!(split.order, whole.order, "from {parallel_from}");
+            assert_eq!(split.nodes.len(), whole.nodes.len());
+            for (a, b) in split.nodes.iter().zip(&whole.nodes) {
+                assert_eq!(
+                    (a.min, a.max, a.offset, a.count),
+                    (b.min, b.max, b.offset, b.count),
+                    "from {parallel_from}"
+                );
+            }
+        }
     }
 
     #[test]
