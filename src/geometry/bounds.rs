@@ -1,7 +1,9 @@
 //! Axis-aligned bounding boxes and the ray-box slab test used by the BVH.
 
 use glam::{DAffine3, DVec3};
-use wide::f64x2;
+
+use super::ray::Ray;
+use wide::{f32x4, f64x2};
 
 /// An axis-aligned box; empty when `min > max` on any axis.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -187,6 +189,154 @@ impl SlabRay {
         }
         (near.to_array(), far.to_array())
     }
+}
+
+/// A box in single precision, rounded outward from its double-precision bounds (so it
+/// only grows): `[min x, min y, min z, max x, max y, max z]`. A coordinate beyond ±10³⁰
+/// is pushed out to that bound or to infinity, so that no slab distance of
+/// [`SlabRay4::enter`] overflows in its subtraction.
+pub type Box32 = [f32; 6];
+
+/// `b` as a [`Box32`].
+pub fn box32(b: &Aabb) -> Box32 {
+    let lo = |x: f64| {
+        if x < -SINGLE_LIMIT {
+            f32::NEG_INFINITY
+        } else {
+            round_down(x.min(SINGLE_LIMIT))
+        }
+    };
+    let hi = |x: f64| {
+        if x > SINGLE_LIMIT {
+            f32::INFINITY
+        } else {
+            round_up(x.max(-SINGLE_LIMIT))
+        }
+    };
+    [
+        lo(b.min.x),
+        lo(b.min.y),
+        lo(b.min.z),
+        hi(b.max.x),
+        hi(b.max.y),
+        hi(b.max.z),
+    ]
+}
+
+/// The largest `f32` at most `x`.
+fn round_down(x: f64) -> f32 {
+    let y = x as f32;
+    if y as f64 > x { y.next_down() } else { y }
+}
+
+/// The smallest `f32` at least `x`.
+fn round_up(x: f64) -> f32 {
+    let y = x as f32;
+    if (y as f64) < x { y.next_up() } else { y }
+}
+
+/// Origin coordinates, and the magnitudes of direction components, within which the
+/// single-precision test is exact up to relative rounding (see [`SlabRay4::new`]).
+const SINGLE_LIMIT: f64 = 1e30;
+
+/// Scales entry distances down, and exit distances up, by more than the relative
+/// rounding of a single-precision slab distance (three roundings of 2⁻²⁴ each, and one
+/// of `t_min` or `t_max` to `f32`), so that the test never rejects a box a ray enters:
+/// 2⁻²⁰ leaves a wide margin.
+const SHRINK: f32 = 1.0 - 1.0 / (1u32 << 20) as f32;
+const GROW: f32 = 1.0 + 1.0 / (1u32 << 20) as f32;
+
+/// Four rays prepared for slab tests together, a SIMD lane each, in single precision:
+/// a packet of neighbouring primary rays traverses a BVH once for all four.
+///
+/// Each ray's origin is taken as two `f32`s, one rounded down and one up. A slab's
+/// distances are `(min − o_up) / d` and `(max − o_down) / d`: whatever the sign of `d`,
+/// the smaller is at most the true entry and the larger at least the true exit, so the
+/// only error left is the relative rounding of the subtraction, the reciprocal and the
+/// product, which [`SHRINK`] and [`GROW`] cover.
+#[derive(Debug, Clone, Copy)]
+pub struct SlabRay4 {
+    o_down: [f32x4; 3],
+    o_up: [f32x4; 3],
+    inv: [f32x4; 3],
+}
+
+impl SlabRay4 {
+    /// Prepares four rays, or `None` when some coordinate of an origin
+    /// is beyond ±10³⁰ or some direction component is zero or of magnitude outside
+    /// [10⁻³⁰, 10³⁰]: then every distance is a normal `f32` or an overflow to the
+    /// right infinity, and no `0 · ∞` arises. Such rays are traced one at a time.
+    #[inline]
+    pub fn new(rays: &[Ray; 4]) -> Option<SlabRay4> {
+        let mut o_down = [[0f32; 4]; 3];
+        let mut o_up = [[0f32; 4]; 3];
+        let mut inv = [[0f32; 4]; 3];
+        for (lane, r) in rays.iter().enumerate() {
+            for a in 0..3 {
+                let (o, d) = (r.origin[a], r.dir[a]);
+                let d_abs = d.abs();
+                if !(o.abs() <= SINGLE_LIMIT
+                    && (1.0 / SINGLE_LIMIT..=SINGLE_LIMIT).contains(&d_abs))
+                {
+                    return None;
+                }
+                o_down[a][lane] = round_down(o);
+                o_up[a][lane] = round_up(o);
+                inv[a][lane] = (1.0 / d) as f32;
+            }
+        }
+        Some(SlabRay4 {
+            o_down: o_down.map(f32x4::new),
+            o_up: o_up.map(f32x4::new),
+            inv: inv.map(f32x4::new),
+        })
+    }
+
+    /// Tests box `b` for the four rays, each within `[t_min, t_max]` of its lane
+    /// (`t_min ≥ 0`): a bit per ray that enters, and each ray's entry `λ` rounded down
+    /// (a lower bound, so a traversal that skips a box entered beyond the best `λ`
+    /// never skips one it must see). Never rejects a box that a ray meets within its
+    /// interval, grazing its faces, edges and corners included.
+    #[inline(always)]
+    pub fn enter(&self, b: &Box32, t_min: f32x4, t_max: f32x4) -> (u32, f32x4) {
+        let mut near = t_min;
+        let mut far = t_max;
+        for a in 0..3 {
+            let t0 = (f32x4::splat(b[a]) - self.o_up[a]) * self.inv[a];
+            let t1 = (f32x4::splat(b[a + 3]) - self.o_down[a]) * self.inv[a];
+            // No NaN arises (see `new`): `minps`/`maxps` are exact here.
+            near = near.fast_max(t0.fast_min(t1));
+            far = far.fast_min(t0.fast_max(t1));
+        }
+        let near = near * f32x4::splat(SHRINK);
+        let hit = near.simd_le(far * f32x4::splat(GROW));
+        (hit.to_bitmask(), near)
+    }
+
+    /// The lanes whose entry `λ` (a lower bound, as [`SlabRay4::enter`] gives it) is
+    /// at most their `t_max`, rounding forgiven.
+    #[inline(always)]
+    pub fn within(near: f32x4, t_max: &[f64; 4]) -> u32 {
+        near.simd_le(lanes(t_max) * f32x4::splat(GROW)).to_bitmask()
+    }
+}
+
+/// The lanes set in a packet's bit set, lowest first.
+#[inline(always)]
+pub fn lanes_of(mut bits: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (bits != 0).then(|| {
+            let lane = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            lane
+        })
+    })
+}
+
+/// `t` for each of four rays, as the `f32` lanes [`SlabRay4::enter`] takes.
+#[inline(always)]
+pub fn lanes(t: &[f64; 4]) -> f32x4 {
+    f32x4::new(t.map(|x| x as f32))
 }
 
 #[cfg(test)]

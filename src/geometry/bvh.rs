@@ -11,7 +11,8 @@
 use arrayvec::ArrayVec;
 use glam::DVec3;
 
-use super::bounds::{Aabb, SlabRay};
+use super::bounds::{Aabb, Box32, SlabRay, SlabRay4, box32, lanes};
+use wide::f32x4;
 
 /// Primitives per leaf at most, when the SAH would rather not split.
 const MAX_LEAF_PRIMS: usize = 4;
@@ -62,6 +63,11 @@ pub struct Bvh {
     nodes: Vec<Node>,
     /// The tree as traversed.
     inner: Vec<Inner>,
+    /// The children's boxes of each of `inner`, in single precision, for packets of
+    /// rays ([`Bvh::closest4`]).
+    inner32: Vec<[Box32; 2]>,
+    /// The root's box in single precision.
+    root32: Box32,
     /// Leaves: `(first, count)` into `order`.
     leaves: Vec<(u32, u32)>,
     /// The root: an index into `inner` or `LEAF | index` (when the tree is one leaf).
@@ -112,12 +118,27 @@ impl Bvh {
         let mut bvh = Bvh {
             nodes: built.nodes,
             inner: Vec::new(),
+            inner32: Vec::new(),
+            root32: box32(&Aabb::EMPTY),
             leaves: Vec::new(),
             root: LEAF,
             order: built.order,
         };
         if !bvh.nodes.is_empty() {
             bvh.root = bvh.flatten(0);
+            bvh.root32 = box32(&bvh.bounds());
+            bvh.inner32 = bvh
+                .inner
+                .iter()
+                .map(|n| {
+                    [0, 1].map(|c| {
+                        box32(&Aabb {
+                            min: DVec3::new(n.min[0][c], n.min[1][c], n.min[2][c]),
+                            max: DVec3::new(n.max[0][c], n.max[1][c], n.max[2][c]),
+                        })
+                    })
+                })
+                .collect();
         }
         bvh
     }
@@ -236,6 +257,88 @@ impl Bvh {
                 };
                 if t <= t_max {
                     cur = node;
+                    break;
+                }
+            }
+        }
+    }
+
+    /// [`Bvh::closest`] for four rays at once (a packet), the lanes of `active`: the
+    /// tree is traversed once, each node's boxes tested for all four rays, while a
+    /// subtree that some active ray enters remains. `leaf(prim, rays, t_max)` tests one
+    /// primitive for the rays of the bit set `rays` (those that entered its leaf) and
+    /// lowers their `t_max`. A ray is given every primitive [`Bvh::closest`] would
+    /// give it, and maybe others, so a leaf function whose result does not depend on
+    /// the order it sees primitives in (the closest hit, ties to the lowest index)
+    /// finds for each ray what it finds alone. `t_min` is not negative.
+    #[inline]
+    pub fn closest4<F: FnMut(u32, u32, &mut [f64; 4])>(
+        &self,
+        rays: &SlabRay4,
+        t_min: f64,
+        t_max: &mut [f64; 4],
+        active: u32,
+        mut leaf: F,
+    ) {
+        let t_min = f32x4::splat(t_min as f32);
+        let (entered, _) = rays.enter(&self.root32, t_min, lanes(t_max));
+        let mut mask = active & entered;
+        if mask == 0 || self.nodes.is_empty() {
+            return;
+        }
+        // (subtree, its rays, their entry λ).
+        let mut stack: ArrayVec<(u32, u32, f32x4), STACK_SIZE> = ArrayVec::new();
+        let mut cur = self.root;
+        loop {
+            if cur & LEAF != 0 {
+                let (start, count) = self.leaves[(cur & !LEAF) as usize];
+                for &p in &self.order[start as usize..(start + count) as usize] {
+                    leaf(p, mask, t_max);
+                }
+            } else {
+                let i = cur as usize;
+                let (b, n) = (&self.inner32[i], &self.inner[i]);
+                let limit = lanes(t_max);
+                let (m0, near0) = rays.enter(&b[0], t_min, limit);
+                let (m1, near1) = rays.enter(&b[1], t_min, limit);
+                let (m0, m1) = (m0 & mask, m1 & mask);
+                if m0 != 0 && m1 != 0 {
+                    // The nearer child first, as the first ray that enters both sees it.
+                    let both = m0 & m1;
+                    let first = if both != 0 {
+                        let lane = both.trailing_zeros() as usize;
+                        near1.to_array()[lane] < near0.to_array()[lane]
+                    } else {
+                        false
+                    } as usize;
+                    let (ms, nears) = ([m0, m1], [near0, near1]);
+                    let other = 1 - first;
+                    // A full stack drops the far subtree: unreachable within the depth
+                    // bound the build guarantees.
+                    let _ = stack.try_push((n.child[other], ms[other], nears[other]));
+                    cur = n.child[first];
+                    mask = ms[first];
+                    continue;
+                } else if m0 != 0 {
+                    cur = n.child[0];
+                    mask = m0;
+                    continue;
+                } else if m1 != 0 {
+                    cur = n.child[1];
+                    mask = m1;
+                    continue;
+                }
+            }
+            // Pop the next subtree that some ray may still find something nearer (or
+            // tied) in.
+            loop {
+                let Some((node, m, near)) = stack.pop() else {
+                    return;
+                };
+                let m = m & SlabRay4::within(near, t_max);
+                if m != 0 {
+                    cur = node;
+                    mask = m;
                     break;
                 }
             }
@@ -453,6 +556,8 @@ impl Builder {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::bounds::lanes_of;
+    use crate::geometry::ray::Ray;
 
     fn unit_box(c: DVec3) -> Aabb {
         Aabb {
@@ -624,6 +729,28 @@ mod tests {
         (origin, dir)
     }
 
+    /// Directions with no zero component (a packet's rays have none): the grid's
+    /// diagonals, which run along box edges from grid points, and arbitrary ones.
+    fn packet_dir() -> impl Strategy<Value = DVec3> + Clone {
+        let diagonal = prop::array::uniform3(prop_oneof![Just(-1.0), Just(1.0), Just(0.5)])
+            .prop_map(DVec3::from);
+        let any =
+            prop::array::uniform3(prop_oneof![-1.0f64..-1e-3, 1e-3f64..1.0]).prop_map(DVec3::from);
+        prop_oneof![2 => diagonal, 1 => any]
+    }
+
+    /// Four rays: from one grid point (as primary rays share the camera) or from four.
+    fn packet() -> impl Strategy<Value = [(DVec3, DVec3); 4]> {
+        let point = prop::array::uniform3(-12i32..12)
+            .prop_map(|c| DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * 0.5);
+        let dirs = || prop::array::uniform4(packet_dir());
+        prop_oneof![
+            (point.clone(), dirs()).prop_map(|(o, d)| d.map(|d| (o, d))),
+            (prop::array::uniform4(point), dirs())
+                .prop_map(|(o, d)| [0, 1, 2, 3].map(|k| (o[k], d[k]))),
+        ]
+    }
+
     use proptest::prelude::*;
 
     proptest! {
@@ -653,6 +780,44 @@ mod tests {
                     bvh.any(&ray, 1e-9, t_max, blocked),
                     (0..boxes.len() as u32).any(blocked)
                 );
+            }
+        }
+
+        #[test]
+        fn packets_find_what_every_box_finds(
+            boxes in prop::collection::vec(grid_box(), 1..80),
+            packets in prop::collection::vec(packet(), 1..12),
+            active in 1u32..16,
+        ) {
+            let bvh = Bvh::build(&boxes);
+            for rays in packets {
+                let slab = SlabRay4::new(&rays.map(|(o, d)| Ray::new(o, d)))
+                    .expect("no zero direction component");
+                let mut best: [Option<(f64, u32)>; 4] = [None; 4];
+                let mut limits = [f64::INFINITY; 4];
+                bvh.closest4(&slab, 1e-9, &mut limits, active, |i, lanes, limits| {
+                    for lane in lanes_of(lanes) {
+                        let (o, d) = rays[lane];
+                        // The rule of `closest_of`, ray by ray.
+                        if let Some(t) = box_surface(&boxes[i as usize], o, d, 1e-9, limits[lane])
+                            && (t < limits[lane]
+                                || best[lane].is_some_and(|(bt, bi)| t == bt && i < bi))
+                        {
+                            best[lane] = Some((t, i));
+                            limits[lane] = t;
+                        }
+                    }
+                });
+                for (lane, &(o, d)) in rays.iter().enumerate() {
+                    let slow = closest_of(&boxes, o, d, |leaf| {
+                        let mut limit = f64::INFINITY;
+                        for i in 0..boxes.len() as u32 {
+                            limit = leaf(i, limit);
+                        }
+                    });
+                    let expected = if active >> lane & 1 == 1 { slow } else { None };
+                    prop_assert_eq!(best[lane], expected, "lane {} ray {:?} + λ {:?}", lane, o, d);
+                }
             }
         }
     }

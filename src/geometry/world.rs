@@ -9,7 +9,7 @@ use std::sync::Arc;
 use glam::{DAffine3, DMat3, DVec3};
 
 use super::{
-    bounds::{Aabb, SlabRay},
+    bounds::{Aabb, SlabRay, SlabRay4, lanes_of},
     bvh::Bvh,
     hit::{Hit, Probe, Surface},
     ray::Ray,
@@ -199,6 +199,82 @@ impl World {
         let slab = SlabRay::new(ray.origin, ray.dir);
         self.bvh
             .closest(&slab, t_min, limit, |i, limit| consider(i, limit, probe));
+        best
+    }
+
+    /// [`World::closest`] for four rays at once, traversing the BVH with them as a
+    /// packet (neighbouring primary rays take much the same path): each ray's hit is
+    /// the one it finds alone, bit for bit. Rays whose numbers the packet's
+    /// single-precision test does not take are traced one at a time.
+    pub fn closest4(&self, rays: &[Ray; 4], t_min: f64, t_max: f64) -> [Option<Hit>; 4] {
+        let Some(slab) = SlabRay4::new(rays) else {
+            return rays.map(|r| self.closest(&r, t_min, t_max));
+        };
+        let mut from_view = [false; 4];
+        for (f, r) in from_view.iter_mut().zip(rays) {
+            *f = self.viewpoint == Some(r.origin);
+        }
+        let mut best: [Option<Hit>; 4] = [None; 4];
+        // What `closest_probed`'s `consider` does, for ray `lane` and a result of
+        // object `i`'s test: the same rule, so the same hit.
+        let take = |best: &mut [Option<Hit>; 4],
+                    lane: usize,
+                    i: u32,
+                    found: Option<(f64, u32)>,
+                    limit: f64|
+         -> f64 {
+            if let Some((lambda, part)) = found {
+                let h = Hit {
+                    lambda,
+                    object: i,
+                    part,
+                };
+                if lambda < limit || best[lane].is_some_and(|b| h.before(&b)) {
+                    best[lane] = Some(h);
+                    return lambda;
+                }
+            }
+            limit
+        };
+        let test = |i: u32, lane: usize, limit: f64| {
+            self.intersect_object_from(
+                i,
+                &rays[lane],
+                from_view[lane],
+                t_min,
+                limit.next_up(),
+                &mut (),
+            )
+        };
+        let mut limit = [t_max; 4];
+        for &i in &self.unbounded {
+            for lane in 0..4 {
+                limit[lane] = take(&mut best, lane, i, test(i, lane, limit[lane]), limit[lane]);
+            }
+        }
+        self.bvh
+            .closest4(&slab, t_min, &mut limit, 0b1111, |i, active, limit| {
+                let s = &self.solids[i as usize];
+                if let Shape::Mesh(mesh) = &s.shape
+                    && active.count_ones() > 1
+                {
+                    // The rays that reach a mesh go through its triangles' BVH together.
+                    let (mut object, mut below) = (*rays, [0.0; 4]);
+                    for k in 0..4 {
+                        object[k] = s.object_ray(&rays[k], from_view[k]);
+                        below[k] = limit[k].next_up();
+                    }
+                    let found = mesh.intersect4(&object, active, t_min, below);
+                    for lane in lanes_of(active) {
+                        limit[lane] = take(&mut best, lane, i, found[lane], limit[lane]);
+                    }
+                } else {
+                    for lane in lanes_of(active) {
+                        limit[lane] =
+                            take(&mut best, lane, i, test(i, lane, limit[lane]), limit[lane]);
+                    }
+                }
+            });
         best
     }
 

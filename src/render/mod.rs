@@ -104,6 +104,88 @@ impl Renderer {
     }
 }
 
+impl Renderer {
+    /// The primary rays of pixels `(u, v)` to `(u + 3, v)`.
+    #[inline]
+    fn pixel_rays4(&self, u: u32, v: u32) -> [Ray; 4] {
+        let mut rays = [Ray::new(DVec3::ZERO, DVec3::ZERO); 4];
+        for (k, r) in rays.iter_mut().enumerate() {
+            *r = self.camera.pixel_ray::<Lecture>(u + k as u32, v);
+        }
+        rays
+    }
+
+    /// [`Renderer::pixel_hit`] of pixels `(u, v)` to `(u + 3, v)`, their rays traced
+    /// as a packet: the same four hits, bit for bit.
+    #[inline]
+    pub fn pixel_hits4(&self, u: u32, v: u32) -> [Option<Surface>; 4] {
+        let rays = self.pixel_rays4(u, v);
+        let hits = self
+            .world
+            .closest4(&rays, PRIMARY_LAMBDA_MIN, f64::INFINITY);
+        let mut out = [None; 4];
+        for k in 0..4 {
+            if let Some(h) = &hits[k] {
+                out[k] = Some(shade::conventional_hit::<Lecture>(
+                    &self.world,
+                    &rays[k],
+                    self.world.surface(&rays[k], h),
+                ));
+            }
+        }
+        out
+    }
+
+    /// [`Renderer::pixel_colour`] of pixels `(u, v)` to `(u + 3, v)` of a scene of one
+    /// sample a pixel, their primary rays traced as a packet: the same four colours,
+    /// bit for bit. `None` for a scene of several samples a pixel.
+    #[inline]
+    pub fn pixel_colours4(&self, u: u32, v: u32, rays: &mut RayCount) -> Option<[DVec3; 4]> {
+        if self.scene.samples != 1 {
+            return None;
+        }
+        let shader = Shader {
+            scene: &self.scene,
+            world: &self.world,
+        };
+        let primary = self.pixel_rays4(u, v);
+        let hits = self
+            .world
+            .closest4(&primary, PRIMARY_LAMBDA_MIN, f64::INFINITY);
+        let mut out = [DVec3::ZERO; 4];
+        for k in 0..4 {
+            // What `Shader::trace_as` counts and does after its search.
+            rays.0 += 1;
+            out[k] = shader.shade_as::<(), Lecture>(&primary[k], 0, hits[k], rays, &mut ());
+        }
+        Some(out)
+    }
+}
+
+/// Pixels `(u, v)` to `(u + width − 1, v)` into `out`: four at a time from `four`
+/// (which counts its rays into `rays`) while it gives them, the rest from the kernel's
+/// own [`Kernel::pixel`].
+#[inline]
+fn row_in_fours<K: Kernel>(
+    kernel: &K,
+    (u, v, width): (u32, u32, u32),
+    rays: &mut u64,
+    out: &mut Vec<K::Pixel>,
+    four: impl Fn(u32, &mut u64) -> Option<[K::Pixel; 4]>,
+) {
+    let mut x = u;
+    while x + 4 <= u + width {
+        match four(x, rays) {
+            Some(p) => out.extend(p),
+            None => break,
+        }
+        x += 4;
+    }
+    for x in x..u + width {
+        out.push(kernel.pixel(x, v, rays));
+    }
+}
+
 /// Reports each pixel's 8-bit RGB colour.
 pub struct ColourKernel<'a>(pub &'a Renderer);
 
@@ -115,6 +197,17 @@ impl Kernel for ColourKernel<'_> {
         let c = self.0.pixel_colour(u, v, &mut n);
         *rays += n.0;
         quantise(c, self.0.scene.gamma)
+    }
+
+    #[inline]
+    fn row(&self, u: u32, v: u32, width: u32, rays: &mut u64, out: &mut Vec<[u8; 3]>) {
+        let gamma = self.0.scene.gamma;
+        row_in_fours(self, (u, v, width), rays, out, |x, rays| {
+            let mut n = RayCount(0);
+            let c = self.0.pixel_colours4(x, v, &mut n)?;
+            *rays += n.0;
+            Some(c.map(|c| quantise(c, gamma)))
+        });
     }
 }
 
@@ -132,6 +225,16 @@ impl Kernel for LinearKernel<'_> {
         *rays += n.0;
         c.as_vec3().to_array()
     }
+
+    #[inline]
+    fn row(&self, u: u32, v: u32, width: u32, rays: &mut u64, out: &mut Vec<[f32; 3]>) {
+        row_in_fours(self, (u, v, width), rays, out, |x, rays| {
+            let mut n = RayCount(0);
+            let c = self.0.pixel_colours4(x, v, &mut n)?;
+            *rays += n.0;
+            Some(c.map(|c| c.as_vec3().to_array()))
+        });
+    }
 }
 
 /// Reports each pixel's first hit (`docs/spec/hit-data.md`).
@@ -143,5 +246,13 @@ impl Kernel for HitKernel<'_> {
     fn pixel(&self, u: u32, v: u32, rays: &mut u64) -> Option<Surface> {
         *rays += 1;
         self.0.pixel_hit(u, v)
+    }
+
+    #[inline]
+    fn row(&self, u: u32, v: u32, width: u32, rays: &mut u64, out: &mut Vec<Option<Surface>>) {
+        row_in_fours(self, (u, v, width), rays, out, |x, rays| {
+            *rays += 4;
+            Some(self.0.pixel_hits4(x, v))
+        });
     }
 }

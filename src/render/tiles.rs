@@ -108,6 +108,15 @@ pub trait Kernel: Sync {
     type Pixel: Send;
     /// Computes pixel `(u, v)` of the full frame, adding the rays it traced to `rays`.
     fn pixel(&self, u: u32, v: u32, rays: &mut u64) -> Self::Pixel;
+
+    /// Appends pixels `(u, v)` to `(u + width − 1, v)` to `out`, each what
+    /// [`Kernel::pixel`] gives: a kernel may trace neighbours together.
+    #[inline]
+    fn row(&self, u: u32, v: u32, width: u32, rays: &mut u64, out: &mut Vec<Self::Pixel>) {
+        for u in u..u + width {
+            out.push(self.pixel(u, v, rays));
+        }
+    }
 }
 
 /// Where finished tiles go. Called from the worker threads, in the order tiles finish.
@@ -217,9 +226,7 @@ pub fn trace_tile<K: Kernel>(
     let mut n = 0u64;
     for v in r.y..r.y + r.height {
         let before = n;
-        for u in r.x..r.x + r.width {
-            pixels.push(kernel.pixel(u, v, &mut n));
-        }
+        kernel.row(r.x, v, r.width, &mut n, &mut pixels);
         // Charged by the row, not the pixel: one atomic add per row costs nothing next
         // to the row, and a costly render still stops within a row.
         cancel.charge(n - before);

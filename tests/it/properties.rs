@@ -118,6 +118,86 @@ fn bvh_finds_the_same_hit_as_brute_force() {
     }
 }
 
+/// A height field of `n × n` quads (two triangles each), bumpy, so that a packet's rays
+/// part ways inside the mesh's own BVH.
+fn height_field(n: u32) -> Value {
+    let mut positions = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, z) = (
+                i as f64 / n as f64 * 2.0 - 1.0,
+                j as f64 / n as f64 * 2.0 - 1.0,
+            );
+            positions.push([x, 0.3 * (5.0 * x).sin() * (4.0 * z).cos(), z]);
+        }
+    }
+    let mut indices = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let a = j * (n + 1) + i;
+            indices.push([a, a + n + 1, a + 1]);
+            indices.push([a + 1, a + n + 1, a + n + 2]);
+        }
+    }
+    json!({
+        "shape": "mesh", "positions": positions, "indices": indices,
+        "material": {"diffuse": [0.5, 0.5, 0.5], "mirror": [0.2, 0.2, 0.2]},
+        "transform": [{"scale": 6}, {"rotate": {"axis": "x", "degrees": -70}}, {"translate": [0, 0, 16]}]
+    })
+}
+
+#[test]
+fn packets_of_four_rays_find_what_each_ray_finds_alone() {
+    for seed in 31..=34 {
+        let mut doc = random_scene(seed, 40, 60);
+        doc["objects"]
+            .as_array_mut()
+            .unwrap()
+            .push(height_field(16));
+        let r = renderer(&doc);
+        let (w, h) = (r.scene.width, r.scene.height);
+        let mut hits = 0;
+        for v in 0..h {
+            for u in (0..w - 3).step_by(4) {
+                let alone: Vec<_> = (u..u + 4).map(|x| r.pixel_hit(x, v)).collect();
+                assert_eq!(
+                    r.pixel_hits4(u, v).to_vec(),
+                    alone,
+                    "seed {seed} ({u}, {v})"
+                );
+                hits += alone.iter().flatten().count();
+                let mut n = raytile::render::RayCount(0);
+                let colours = r.pixel_colours4(u, v, &mut n).expect("one sample a pixel");
+                let mut m = raytile::render::RayCount(0);
+                let one: Vec<_> = (u..u + 4).map(|x| r.pixel_colour(x, v, &mut m)).collect();
+                assert_eq!(colours.to_vec(), one, "seed {seed} ({u}, {v})");
+                assert_eq!(n.0, m.0, "the same rays are counted");
+            }
+        }
+        assert!(
+            hits > (w * h / 10) as usize,
+            "seed {seed}: only {hits} hits"
+        );
+        // Four unrelated rays at a time: a packet that parts at once.
+        let mut rng = Rng(seed * 104_729);
+        for _ in 0..500 {
+            let rays = [0; 4].map(|_| {
+                Ray::new(
+                    DVec3::from(rng.v3(-8.0, 8.0)) + DVec3::new(0.0, 0.0, 10.0),
+                    DVec3::from(rng.v3(-1.0, 1.0)),
+                )
+            });
+            let four = r.world.closest4(&rays, 1e-9, f64::INFINITY);
+            for (k, ray) in rays.iter().enumerate() {
+                assert_eq!(
+                    four[k],
+                    r.world.closest_brute_force(ray, 1e-9, f64::INFINITY)
+                );
+            }
+        }
+    }
+}
+
 /// The scene with `steps` appended to the camera's and every object's transform, so the
 /// common move applies after each one's own placement.
 fn moved(doc: &Value, steps: &Value) -> Value {

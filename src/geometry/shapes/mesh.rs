@@ -13,7 +13,7 @@ use glam::DVec3;
 
 use super::CanonicalShape;
 use crate::geometry::{
-    bounds::{Aabb, SlabRay},
+    bounds::{Aabb, SlabRay, SlabRay4, lanes_of},
     bvh::Bvh,
     hit::{Probe, TriangleTest},
     ray::Ray,
@@ -49,6 +49,20 @@ impl Mesh {
             self.positions[b as usize],
             self.positions[c as usize],
         ]
+    }
+
+    /// The closest triangle hit, `λ` and triangle, for each of the rays of `active`
+    /// (in object space), each within `(t_min, t_max[lane])`: what
+    /// [`CanonicalShape::intersect`] gives each alone, found by traversing the
+    /// triangles' BVH with the rays as a packet.
+    pub fn intersect4(
+        &self,
+        rays: &[Ray; 4],
+        active: u32,
+        t_min: f64,
+        t_max: [f64; 4],
+    ) -> [Option<(f64, u32)>; 4] {
+        self.accel().intersect4(rays, active, t_min, t_max)
     }
 
     #[inline(always)]
@@ -201,6 +215,44 @@ impl MeshAccel {
                 _ => limit,
             }
         });
+        best
+    }
+
+    /// [`MeshAccel::intersect`] for the rays of `active`, as a packet.
+    #[inline]
+    fn intersect4(
+        &self,
+        rays: &[Ray; 4],
+        active: u32,
+        t_min: f64,
+        t_max: [f64; 4],
+    ) -> [Option<(f64, u32)>; 4] {
+        let mut best: [Option<(f64, u32)>; 4] = [None; 4];
+        let Some(slab) = SlabRay4::new(rays) else {
+            for lane in lanes_of(active) {
+                best[lane] = self.intersect(&rays[lane], t_min, t_max[lane], &mut ());
+            }
+            return best;
+        };
+        let mut limits = t_max;
+        self.bvh
+            .closest4(&slab, t_min, &mut limits, active, |k, rays_in, limits| {
+                let (tri, id) = (&self.tris[k as usize], self.ids[k as usize]);
+                for lane in lanes_of(rays_in) {
+                    let limit = limits[lane];
+                    // The rule of `intersect`, ray by ray.
+                    match moller_trumbore(tri, &rays[lane], t_min, limit, id, &mut ()) {
+                        Some(t)
+                            if t < limit
+                                || best[lane].is_some_and(|(bt, bid)| t == bt && id < bid) =>
+                        {
+                            best[lane] = Some((t, id));
+                            limits[lane] = t;
+                        }
+                        _ => {}
+                    }
+                }
+            });
         best
     }
 
