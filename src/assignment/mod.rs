@@ -152,7 +152,7 @@ pub fn parse(bytes: &[u8], limits: &Limits) -> Result<Assignment, AssignmentErro
             let inner = e.into_inner();
             if inner.to_string().starts_with("number out of range") {
                 return Err(AssignmentError::Invalid(vec![Problem::new(
-                    at.as_str(),
+                    at.to_string(),
                     "the number is out of range: numbers must be finite",
                 )]));
             }
@@ -171,7 +171,7 @@ pub fn parse(bytes: &[u8], limits: &Limits) -> Result<Assignment, AssignmentErro
 fn unknown_fields(obj: &Map<String, Value>, known: &[&str], at: &Pointer, p: &mut Vec<Problem>) {
     for k in obj.keys().filter(|k| !known.contains(&k.as_str())) {
         p.push(Problem::new(
-            at.key(k).as_str(),
+            at.key(k).to_string(),
             format!("unknown field `{k}`: expected one of {}", known.join(", ")),
         ));
     }
@@ -246,12 +246,13 @@ fn check(value: Value, limits: &Limits, p: &mut Vec<Problem>) -> Option<Assignme
     };
     let mut checked = Vec::new();
     let mut names: Vec<String> = Vec::new();
+    let list = root.key("scenes");
     for (i, s) in scenes.into_iter().enumerate() {
-        let at = root.key("scenes").index(i);
+        let at = list.index(i);
         if let Some(s) = check_scene(s, &at, limits, p) {
             if names.contains(&s.name) {
                 p.push(Problem::new(
-                    at.key("name").as_str(),
+                    at.key("name").to_string(),
                     format!("the name `{}` is used by an earlier scene", s.name),
                 ));
             }
@@ -285,14 +286,17 @@ fn check_scene(
     p: &mut Vec<Problem>,
 ) -> Option<AssignedScene> {
     let Value::Object(mut obj) = value else {
-        p.push(Problem::new(at.as_str(), "a scene entry must be an object"));
+        p.push(Problem::new(
+            at.to_string(),
+            "a scene entry must be an object",
+        ));
         return None;
     };
     unknown_fields(&obj, SCENE_FIELDS, at, p);
     let before = p.len();
     let missing = |p: &mut Vec<Problem>, f: &str| {
         p.push(Problem::new(
-            at.key(f).as_str(),
+            at.key(f).to_string(),
             format!("missing field `{f}`"),
         ))
     };
@@ -300,13 +304,13 @@ fn check_scene(
         Some(Value::String(s)) if valid_name(s) => Some(s.clone()),
         Some(Value::String(s)) => {
             p.push(Problem::new(
-                at.key("name").as_str(),
+                at.key("name").to_string(),
                 format!("`{s}` cannot name a file: use 1 to 64 letters, digits, `_` and `-`"),
             ));
             None
         }
         Some(_) => {
-            p.push(Problem::new(at.key("name").as_str(), "must be a string"));
+            p.push(Problem::new(at.key("name").to_string(), "must be a string"));
             None
         }
         None => {
@@ -318,7 +322,7 @@ fn check_scene(
         Some(Some(x)) if x > 0.0 && x.is_finite() => Some(x),
         Some(_) => {
             p.push(Problem::new(
-                at.key("points").as_str(),
+                at.key("points").to_string(),
                 "must be a number greater than 0",
             ));
             None
@@ -332,7 +336,7 @@ fn check_scene(
         Some(Value::String(s)) if Graded::from_name(s).is_some() => Graded::from_name(s),
         Some(v) => {
             p.push(Problem::new(
-                at.key("grade").as_str(),
+                at.key("grade").to_string(),
                 format!("must be `image`, `hits` or `both`, not {v}"),
             ));
             None
@@ -347,7 +351,7 @@ fn check_scene(
         Some(Value::String(s)) if s == "after_due_date" => true,
         Some(v) => {
             p.push(Problem::new(
-                at.key("feedback").as_str(),
+                at.key("feedback").to_string(),
                 format!("must be `after_due_date`, not {v}"),
             ));
             false
@@ -357,7 +361,7 @@ fn check_scene(
         Some("visible") => {
             if obj.contains_key("feedback") {
                 p.push(Problem::new(
-                    at.key("feedback").as_str(),
+                    at.key("feedback").to_string(),
                     "only a hidden scene takes `feedback`: a visible one always has full feedback",
                 ));
             }
@@ -370,7 +374,7 @@ fn check_scene(
         }
         _ => {
             p.push(Problem::new(
-                at.key("visibility").as_str(),
+                at.key("visibility").to_string(),
                 "must be `visible` or `hidden`",
             ));
             None
@@ -382,13 +386,16 @@ fn check_scene(
             Ok(()) => Some(t),
             Err(crate::grade::GradeError::BadTolerance { field, message }) => {
                 p.push(Problem::new(
-                    at.key("tolerances").key(field).as_str(),
+                    at.key("tolerances").key(field).to_string(),
                     message,
                 ));
                 None
             }
             Err(e) => {
-                p.push(Problem::new(at.key("tolerances").as_str(), e.to_string()));
+                p.push(Problem::new(
+                    at.key("tolerances").to_string(),
+                    e.to_string(),
+                ));
                 None
             }
         }),
@@ -402,7 +409,7 @@ fn check_scene(
             }),
             None => {
                 p.push(Problem::new(
-                    at.key("scoring").as_str(),
+                    at.key("scoring").to_string(),
                     format!("must be `all-or-nothing`, `linear` or `error`, not `{s}`"),
                 ));
                 None
@@ -417,33 +424,33 @@ fn check_scene(
             crate::grade::GradeError::BadScoring { field, .. } => *field,
             _ => "",
         };
-        let mut ptr = at.key("scoring");
+        let mut ptr = at.key("scoring").owned();
         for part in field.split('.').filter(|f| !f.is_empty()) {
-            ptr = ptr.key(part);
+            ptr = ptr.key(part).owned();
         }
-        p.push(Problem::new(ptr.as_str(), e.to_string()));
+        p.push(Problem::new(ptr.to_string(), e.to_string()));
     }
-    let scene =
-        match obj.remove("scene") {
-            None => {
-                missing(p, "scene");
+    let scene = match obj.remove("scene") {
+        None => {
+            missing(p, "scene");
+            None
+        }
+        Some(v) => match scene::parse_value(v, limits) {
+            Ok(s) => Some(s),
+            Err(SceneError::Invalid(list)) => {
+                let base = at.key("scene");
+                p.extend(
+                    list.into_iter()
+                        .map(|q| Problem::new(format!("{}{}", base, q.pointer), q.message)),
+                );
                 None
             }
-            Some(v) => match scene::parse_value(v, limits) {
-                Ok(s) => Some(s),
-                Err(SceneError::Invalid(list)) => {
-                    let base = at.key("scene");
-                    p.extend(list.into_iter().map(|q| {
-                        Problem::new(format!("{}{}", base.as_str(), q.pointer), q.message)
-                    }));
-                    None
-                }
-                Err(e) => {
-                    p.push(Problem::new(at.key("scene").as_str(), e.to_string()));
-                    None
-                }
-            },
-        };
+            Err(e) => {
+                p.push(Problem::new(at.key("scene").to_string(), e.to_string()));
+                None
+            }
+        },
+    };
     if p.len() > before {
         return None;
     }
@@ -469,7 +476,7 @@ fn typed<T: serde::de::DeserializeOwned>(
         Err(e) => {
             let ptr = at.join_path(e.path());
             p.push(Problem::new(
-                ptr.as_str(),
+                ptr.to_string(),
                 crate::json::strip_position(&e.into_inner().to_string()),
             ));
             None

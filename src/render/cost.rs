@@ -293,11 +293,11 @@ impl TooCostly {
         let image = root.key("image");
         let mut out = vec![
             Problem::new(
-                image.key("width").as_str(),
+                image.key("width").to_string(),
                 format!("{} pixels wide: {tail}", scene.width),
             ),
             Problem::new(
-                image.key("height").as_str(),
+                image.key("height").to_string(),
                 format!("{} pixels high: {tail}", scene.height),
             ),
         ];
@@ -306,14 +306,14 @@ impl TooCostly {
         }
         let s = scene.samples;
         out.push(Problem::new(
-            image.key("samples").as_str(),
+            image.key("samples").to_string(),
             format!("{}: {tail}", crate::scene::sample_grid(s)),
         ));
         if self.estimate.branching.is_empty() {
             return out;
         }
         out.push(Problem::new(
-            root.key("max_depth").as_str(),
+            root.key("max_depth").to_string(),
             format!(
                 "secondary rays recurse up to {} deep: {tail}",
                 scene.max_depth
@@ -347,19 +347,13 @@ fn material_pointers(scene: &Scene, materials: &[u32]) -> Vec<String> {
         }
         match &doc.material {
             Some(MaterialRefDoc::Named(name)) => {
-                let p = root.key("materials").key(name).as_str().to_string();
+                let p = root.key("materials").key(name).to_string();
                 if !named.contains(&p) {
                     named.push(p);
                 }
             }
             Some(MaterialRefDoc::Inline(_)) => {
-                inline.push(
-                    root.key("objects")
-                        .index(i)
-                        .key("material")
-                        .as_str()
-                        .to_string(),
-                );
+                inline.push(root.key("objects").index(i).key("material").to_string());
             }
             None => {}
         }

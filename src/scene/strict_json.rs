@@ -40,7 +40,7 @@ impl Duplicates {
     fn add(&mut self, at: Option<&Link<'_>>, key: &str) {
         if self.list.len() < MAX_PROBLEMS {
             self.list.push(Problem::new(
-                pointer(at).key(key).as_str(),
+                pointer(at).key(key).to_string(),
                 format!("duplicate key `{key}`"),
             ));
         } else {
@@ -116,7 +116,7 @@ struct Link<'a> {
     parent: Option<&'a Link<'a>>,
 }
 
-fn pointer(at: Option<&Link<'_>>) -> Pointer {
+fn pointer(at: Option<&Link<'_>>) -> Pointer<'static> {
     let mut segments = Vec::new();
     let mut next = at;
     while let Some(link) = next {
@@ -127,8 +127,8 @@ fn pointer(at: Option<&Link<'_>>) -> Pointer {
         .into_iter()
         .rev()
         .fold(Pointer::root(), |p, s| match s {
-            Segment::Key(k) => p.key(k),
-            Segment::Index(i) => p.index(*i),
+            Segment::Key(k) => p.key(k).owned(),
+            Segment::Index(i) => p.index(*i).owned(),
         })
 }
 

@@ -138,12 +138,16 @@ mod tests {
         serde_json::from_value(v).expect("a material reference")
     }
 
-    fn at() -> Pointer {
-        Pointer::root().key("materials")
+    fn at() -> Pointer<'static> {
+        Pointer::root().key("materials").owned()
     }
 
-    fn object_at() -> Pointer {
-        Pointer::root().key("objects").index(0).key("material")
+    fn object_at() -> Pointer<'static> {
+        Pointer::root()
+            .key("objects")
+            .index(0)
+            .key("material")
+            .owned()
     }
 
     #[test]

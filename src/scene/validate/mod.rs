@@ -60,7 +60,7 @@ pub fn parse(bytes: &[u8], limits: &Limits) -> Result<Scene, SceneError> {
             // write a non-finite value, and it is a problem of that field, not of syntax.
             if inner.to_string().starts_with("number out of range") {
                 return Err(SceneError::Invalid(vec![Problem::new(
-                    at.as_str(),
+                    at.to_string(),
                     format!(
                         "the number at line {}, column {} is out of range: numbers must be finite",
                         inner.line(),
@@ -96,7 +96,7 @@ struct Problems {
 impl Problems {
     fn add(&mut self, at: &Pointer, message: impl Into<String>) {
         if self.list.len() < MAX_PROBLEMS {
-            self.list.push(Problem::new(at.as_str(), message));
+            self.list.push(Problem::new(at.to_string(), message));
         } else {
             self.dropped += 1;
         }
