@@ -240,9 +240,10 @@ fn round_up(x: f64) -> f32 {
 const SINGLE_LIMIT: f64 = 1e30;
 
 /// Scales entry distances down, and exit distances up, by more than the relative
-/// rounding of a single-precision slab distance (three roundings of 2⁻²⁴ each, and one
-/// of `t_min` or `t_max` to `f32`), so that the test never rejects a box a ray enters:
-/// 2⁻²⁰ leaves a wide margin.
+/// rounding of a single-precision slab distance (at most 2⁻²⁴ each for the direction
+/// rounded to `f32`, its reciprocal, the subtraction, the product, and `t_min` or
+/// `t_max` rounded to `f32`: five in all), so that the test never rejects a box a ray
+/// enters: 2⁻²⁰, sixteen of them, leaves a wide margin.
 const SHRINK: f32 = 1.0 - 1.0 / (1u32 << 20) as f32;
 const GROW: f32 = 1.0 + 1.0 / (1u32 << 20) as f32;
 
@@ -252,8 +253,8 @@ const GROW: f32 = 1.0 + 1.0 / (1u32 << 20) as f32;
 /// Each ray's origin is taken as two `f32`s, one rounded down and one up. A slab's
 /// distances are `(min − o_up) / d` and `(max − o_down) / d`: whatever the sign of `d`,
 /// the smaller is at most the true entry and the larger at least the true exit, so the
-/// only error left is the relative rounding of the subtraction, the reciprocal and the
-/// product, which [`SHRINK`] and [`GROW`] cover.
+/// only error left is the relative rounding of the direction, its reciprocal, the
+/// subtraction and the product, which [`SHRINK`] and [`GROW`] cover.
 #[derive(Debug, Clone, Copy)]
 pub struct SlabRay4 {
     o_down: [f32x4; 3],
@@ -262,33 +263,58 @@ pub struct SlabRay4 {
 }
 
 impl SlabRay4 {
-    /// Prepares four rays, or `None` when some coordinate of an origin
-    /// is beyond ±10³⁰ or some direction component is zero or of magnitude outside
+    /// Prepares four rays, or `None` when some coordinate of an origin is beyond ±10³⁰
+    /// or some direction component, rounded to `f32`, is zero or of magnitude outside
     /// [10⁻³⁰, 10³⁰]: then every distance is a normal `f32` or an overflow to the
     /// right infinity, and no `0 · ∞` arises. Such rays are traced one at a time.
     #[inline]
     pub fn new(rays: &[Ray; 4]) -> Option<SlabRay4> {
-        let mut o_down = [[0f32; 4]; 3];
-        let mut o_up = [[0f32; 4]; 3];
-        let mut inv = [[0f32; 4]; 3];
+        let mut d = [[0f32; 4]; 3];
         for (lane, r) in rays.iter().enumerate() {
-            for a in 0..3 {
-                let (o, d) = (r.origin[a], r.dir[a]);
-                let d_abs = d.abs();
-                if !(o.abs() <= SINGLE_LIMIT
-                    && (1.0 / SINGLE_LIMIT..=SINGLE_LIMIT).contains(&d_abs))
-                {
-                    return None;
-                }
-                o_down[a][lane] = round_down(o);
-                o_up[a][lane] = round_up(o);
-                inv[a][lane] = (1.0 / d) as f32;
+            for (a, axis) in d.iter_mut().enumerate() {
+                axis[lane] = r.dir[a] as f32;
             }
         }
+        let d = d.map(f32x4::new);
+        let (small, large) = (f32x4::splat(1e-30), f32x4::splat(1e30));
+        // Written so that a NaN fails too.
+        let fits = d.iter().all(|d| {
+            let m = d.abs();
+            (m.simd_ge(small) & m.simd_le(large)).to_bitmask() == 0b1111
+        });
+        if !fits {
+            return None;
+        }
+        let near = |o: f64| o.abs() <= SINGLE_LIMIT;
+        let first = rays[0].origin;
+        let (o_down, o_up) = if rays.iter().all(|r| r.origin == first) {
+            // Primary rays share the camera: its bounds once.
+            if !(near(first.x) && near(first.y) && near(first.z)) {
+                return None;
+            }
+            (
+                [0, 1, 2].map(|a| f32x4::splat(round_down(first[a]))),
+                [0, 1, 2].map(|a| f32x4::splat(round_up(first[a]))),
+            )
+        } else {
+            let mut down = [[0f32; 4]; 3];
+            let mut up = [[0f32; 4]; 3];
+            for (lane, r) in rays.iter().enumerate() {
+                for a in 0..3 {
+                    let o = r.origin[a];
+                    if !near(o) {
+                        return None;
+                    }
+                    down[a][lane] = round_down(o);
+                    up[a][lane] = round_up(o);
+                }
+            }
+            (down.map(f32x4::new), up.map(f32x4::new))
+        };
         Some(SlabRay4 {
-            o_down: o_down.map(f32x4::new),
-            o_up: o_up.map(f32x4::new),
-            inv: inv.map(f32x4::new),
+            o_down,
+            o_up,
+            inv: d.map(|d| f32x4::splat(1.0) / d),
         })
     }
 

@@ -328,7 +328,7 @@ impl World {
     /// The full record of a hit found on `ray`.
     pub fn surface(&self, ray: &Ray, hit: &Hit) -> Surface {
         let s = &self.solids[hit.object as usize];
-        let r = ray.transformed(&s.object_from_world);
+        let r = s.object_ray(ray, self.viewpoint == Some(ray.origin));
         let object_point = r.at(hit.lambda);
         let n_object = s.shape.normal(object_point, hit.part);
         let face = s.shape.face(hit.part);
