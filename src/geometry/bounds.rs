@@ -395,6 +395,96 @@ mod tests {
     }
 
     #[test]
+    fn single_precision_boxes_only_grow() {
+        let b = Aabb {
+            min: DVec3::new(0.1, -1e-40, -3e35),
+            max: DVec3::new(0.3, 1e-300, 7e31),
+        };
+        let f = box32(&b);
+        for a in 0..3 {
+            assert!(
+                (f[a] as f64) <= b.min[a],
+                "axis {a}: {} > {}",
+                f[a],
+                b.min[a]
+            );
+            assert!(
+                (f[a + 3] as f64) >= b.max[a],
+                "axis {a}: {} < {}",
+                f[a + 3],
+                b.max[a]
+            );
+        }
+        // Beyond ±1e30 a coordinate goes out to infinity, or in to the bound.
+        assert_eq!((f[2], f[5]), (f32::NEG_INFINITY, f32::INFINITY));
+        let far = box32(&Aabb {
+            min: DVec3::splat(2e30),
+            max: DVec3::splat(-2e30),
+        });
+        assert!(far[0] as f64 <= 1e30 && far[3] as f64 >= -1e30);
+        // One step outward where f32 cannot hold the value, none where it can.
+        assert_eq!((f[0], f[3]), (0.1f32.next_down(), 0.3f32));
+        assert_eq!(box32(&Aabb::CANONICAL), [-1.0, -1.0, -1.0, 1.0, 1.0, 1.0]);
+    }
+
+    fn ray(o: [f64; 3], d: [f64; 3]) -> Ray {
+        Ray::new(DVec3::from(o), DVec3::from(d))
+    }
+
+    #[test]
+    fn packets_refuse_rays_the_single_precision_test_cannot_bound() {
+        let good = ray([0.0, 1.0, -5.0], [0.3, -0.2, 1.0]);
+        assert!(SlabRay4::new(&[good; 4]).is_some());
+        for bad in [
+            ray([0.0, 1.0, -5.0], [0.0, -0.2, 1.0]),
+            ray([0.0, 1.0, -5.0], [1e-31, -0.2, 1.0]),
+            ray([0.0, 1.0, -5.0], [1e31, -0.2, 1.0]),
+            ray([0.0, 1.0, -5.0], [f64::NAN, -0.2, 1.0]),
+            ray([2e30, 1.0, -5.0], [0.3, -0.2, 1.0]),
+            ray([f64::NAN, 1.0, -5.0], [0.3, -0.2, 1.0]),
+        ] {
+            assert!(SlabRay4::new(&[good, good, bad, good]).is_none(), "{bad:?}");
+            assert!(SlabRay4::new(&[bad; 4]).is_none(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn a_packet_enters_what_each_ray_enters_and_no_later() {
+        // A box the rays graze: one runs just under its top face, one touches its edge.
+        let b = Aabb {
+            min: DVec3::new(-1.0, -1.0, 2.0),
+            max: DVec3::new(1.0, 1.0, 4.0),
+        };
+        let rays = [
+            ray([0.0, 0.0, 0.0], [0.1, 0.1, 1.0]),
+            ray([0.0, 1.0, 0.0], [0.1, -1e-20, 1.0]),
+            ray([0.0, 0.0, 0.0], [0.5, 0.5, 1.0]),
+            ray([0.0, 0.0, 0.0], [0.6, 0.1, 1.0]),
+        ];
+        let p = SlabRay4::new(&rays).expect("a packet");
+        let (hit, near) = p.enter(&box32(&b), f32x4::splat(0.0), f32x4::splat(f32::INFINITY));
+        // Lane 2 touches the edge x = y = 1 at z = 2 (λ = 2); lane 3 leaves through
+        // x = 1 at λ = 1.67, before z = 2.
+        assert_eq!(hit, 0b0111);
+        let near = near.to_array();
+        for lane in 0..3 {
+            let t = near[lane] as f64;
+            assert!(t <= 2.0 && t > 2.0 * 0.999_99, "lane {lane}: {t}");
+        }
+        // A ray whose best so far is before the box does not enter it.
+        let (hit, _) = p.enter(
+            &box32(&b),
+            f32x4::splat(0.0),
+            f32x4::new([1.9, 1e9, 1.5, 1e9]),
+        );
+        assert_eq!(hit, 0b0010);
+        assert_eq!(
+            SlabRay4::within(f32x4::splat(2.0), &[1.0, 2.0, 3.0, 1.999_999_9]),
+            0b1110
+        );
+    }
+
+    #[test]
     fn transformed_box_holds_corners() {
         let m = DAffine3::from_rotation_y(0.7) * DAffine3::from_translation(DVec3::X);
         let b = Aabb::CANONICAL.transformed(&m);
