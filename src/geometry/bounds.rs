@@ -467,8 +467,8 @@ mod tests {
         // x = 1 at λ = 1.67, before z = 2.
         assert_eq!(hit, 0b0111);
         let near = near.to_array();
-        for lane in 0..3 {
-            let t = near[lane] as f64;
+        for (lane, &t) in near.iter().enumerate().take(3) {
+            let t = t as f64;
             assert!(t <= 2.0 && t > 2.0 * 0.999_99, "lane {lane}: {t}");
         }
         // A ray whose best so far is before the box does not enter it.
