@@ -95,8 +95,22 @@ fn median_split(prims: &mut [BuildPrim], axis: usize) -> (usize, usize) {
 }
 
 impl Bvh {
-    /// Builds over `bounds[i]` for every `i`; empty boxes are left out.
+    /// Builds over `bounds[i]` for every `i`, on the calling thread; empty boxes are
+    /// left out.
     pub fn build(bounds: &[Aabb]) -> Bvh {
+        Bvh::build_from(bounds, usize::MAX)
+    }
+
+    /// [`Bvh::build`], the two halves of every subtree of 8192 (`PARALLEL_PRIMS`) or more
+    /// primitives built in parallel on the current rayon pool: the same tree. Not for a
+    /// caller holding a lock that another job on the pool may ask for (a mesh building
+    /// inside its `OnceLock`): while it waits for a half, a rayon thread runs other jobs,
+    /// and one of them could wait for that lock, on the very thread that holds it.
+    pub fn build_in_parallel(bounds: &[Aabb]) -> Bvh {
+        Bvh::build_from(bounds, PARALLEL_PRIMS)
+    }
+
+    fn build_from(bounds: &[Aabb], parallel_from: usize) -> Bvh {
         let mut prims: Vec<BuildPrim> = bounds
             .iter()
             .enumerate()
@@ -113,7 +127,7 @@ impl Bvh {
         let built = if prims.is_empty() {
             Builder::default()
         } else {
-            Builder::subtree(&mut prims, 0, PARALLEL_PRIMS)
+            Builder::subtree(&mut prims, 0, parallel_from)
         };
         let mut bvh = Bvh {
             nodes: built.nodes,

@@ -96,7 +96,8 @@ impl World {
             });
         }
         World {
-            bvh: Bvh::build(&bounds),
+            // No lock is held here (meshes were prepared above, each in its own).
+            bvh: Bvh::build_in_parallel(&bounds),
             solids,
             placements,
             unbounded,

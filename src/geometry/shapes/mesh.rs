@@ -170,6 +170,8 @@ impl MeshAccel {
                 Aabb::EMPTY.grow(a).grow(b).grow(c)
             })
             .collect();
+        // On this thread: this runs inside the mesh's `OnceLock` (see
+        // `Bvh::build_in_parallel`).
         let bvh = Bvh::build(&bounds);
         // The BVH's leaves name triangles in scene order; store them in leaf order so a
         // leaf's triangles sit together in memory, and remap the leaves to positions.
