@@ -64,6 +64,25 @@ pub struct World {
     viewpoint: Option<DVec3>,
 }
 
+/// Takes what object `i`'s test `found` (`λ`, part) as the best hit when it is nearer
+/// than `limit`, or ties the best so far and ranks before it ([`Hit::before`]); returns
+/// the new limit. What a ray finds does not depend on the order objects are tested in.
+#[inline(always)]
+fn keep_first(best: &mut Option<Hit>, i: u32, found: Option<(f64, u32)>, limit: f64) -> f64 {
+    if let Some((lambda, part)) = found {
+        let h = Hit {
+            lambda,
+            object: i,
+            part,
+        };
+        if lambda < limit || best.is_some_and(|b| h.before(&b)) {
+            *best = Some(h);
+            return lambda;
+        }
+    }
+    limit
+}
+
 impl World {
     /// Prepares `(shape, world_from_object)` pairs, in scene order, and builds the BVH.
     pub fn new<'a>(objects: impl IntoIterator<Item = (&'a Shape, &'a Transform)>) -> World {
@@ -182,20 +201,9 @@ impl World {
         let from_view = self.viewpoint == Some(ray.origin);
         let mut consider = |i: u32, limit: f64, probe: &mut P| -> f64 {
             // `next_up` lets an equal λ through, so the tie rule can see it.
-            if let Some((lambda, part)) =
-                self.intersect_object_from(i, ray, from_view, t_min, limit.next_up(), probe)
-            {
-                let h = Hit {
-                    lambda,
-                    object: i,
-                    part,
-                };
-                if lambda < limit || best.is_some_and(|b| h.before(&b)) {
-                    best = Some(h);
-                    return lambda;
-                }
-            }
-            limit
+            let found =
+                self.intersect_object_from(i, ray, from_view, t_min, limit.next_up(), probe);
+            keep_first(&mut best, i, found, limit)
         };
         let mut limit = t_max;
         for &i in &self.unbounded {
@@ -220,27 +228,13 @@ impl World {
             *f = self.viewpoint == Some(r.origin);
         }
         let mut best: [Option<Hit>; 4] = [None; 4];
-        // What `closest_probed`'s `consider` does, for ray `lane` and a result of
-        // object `i`'s test: the same rule, so the same hit.
+        // The rule of `closest_probed`, ray by ray, so the same hits.
         let take = |best: &mut [Option<Hit>; 4],
                     lane: usize,
                     i: u32,
                     found: Option<(f64, u32)>,
                     limit: f64|
-         -> f64 {
-            if let Some((lambda, part)) = found {
-                let h = Hit {
-                    lambda,
-                    object: i,
-                    part,
-                };
-                if lambda < limit || best[lane].is_some_and(|b| h.before(&b)) {
-                    best[lane] = Some(h);
-                    return lambda;
-                }
-            }
-            limit
-        };
+         -> f64 { keep_first(&mut best[lane], i, found, limit) };
         let test = |i: u32, lane: usize, limit: f64| {
             self.intersect_object_from(
                 i,

@@ -208,14 +208,7 @@ impl MeshAccel {
         self.bvh.closest(&slab, t_min, t_max, |k, limit| {
             let id = self.ids[k as usize];
             let hit = moller_trumbore(&self.tris[k as usize], ray, t_min, limit, id, probe);
-            match hit {
-                // A tie goes to the triangle listed first.
-                Some(t) if t < limit || best.is_some_and(|(bt, bid)| t == bt && id < bid) => {
-                    best = Some((t, id));
-                    t
-                }
-                _ => limit,
-            }
+            keep_first(&mut best, hit, id, limit)
         });
         best
     }
@@ -242,17 +235,8 @@ impl MeshAccel {
                 let (tri, id) = (&self.tris[k as usize], self.ids[k as usize]);
                 for lane in lanes_of(rays_in) {
                     let limit = limits[lane];
-                    // The rule of `intersect`, ray by ray.
-                    match moller_trumbore(tri, &rays[lane], t_min, limit, id, &mut ()) {
-                        Some(t)
-                            if t < limit
-                                || best[lane].is_some_and(|(bt, bid)| t == bt && id < bid) =>
-                        {
-                            best[lane] = Some((t, id));
-                            limits[lane] = t;
-                        }
-                        _ => {}
-                    }
+                    let hit = moller_trumbore(tri, &rays[lane], t_min, limit, id, &mut ());
+                    limits[lane] = keep_first(&mut best[lane], hit, id, limit);
                 }
             });
         best
@@ -265,6 +249,20 @@ impl MeshAccel {
         self.bvh.any(&slab, t_min, t_max, |k| {
             moller_trumbore(&self.tris[k as usize], ray, t_min, t_max, 0, &mut ()).is_some()
         })
+    }
+}
+
+/// Takes triangle `id`'s hit `λ` as the best when it is nearer than `limit`, or ties
+/// the best so far and is listed before it; returns the new limit. What a ray finds
+/// does not depend on the order triangles are tested in.
+#[inline(always)]
+fn keep_first(best: &mut Option<(f64, u32)>, hit: Option<f64>, id: u32, limit: f64) -> f64 {
+    match hit {
+        Some(t) if t < limit || best.is_some_and(|(bt, bid)| t == bt && id < bid) => {
+            *best = Some((t, id));
+            t
+        }
+        _ => limit,
     }
 }
 
