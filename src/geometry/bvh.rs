@@ -141,18 +141,6 @@ impl Bvh {
         if !bvh.nodes.is_empty() {
             bvh.root = bvh.flatten(0);
             bvh.root32 = box32(&bvh.bounds());
-            bvh.inner32 = bvh
-                .inner
-                .iter()
-                .map(|n| {
-                    [0, 1].map(|c| {
-                        box32(&Aabb {
-                            min: DVec3::new(n.min[0][c], n.min[1][c], n.min[2][c]),
-                            max: DVec3::new(n.max[0][c], n.max[1][c], n.max[2][c]),
-                        })
-                    })
-                })
-                .collect();
         }
         bvh
     }
@@ -173,6 +161,12 @@ impl Bvh {
             max: [[a.max.x, b.max.x], [a.max.y, b.max.y], [a.max.z, b.max.z]],
             child: [0, 0],
         });
+        self.inner32.push([a, b].map(|c| {
+            box32(&Aabb {
+                min: c.min,
+                max: c.max,
+            })
+        }));
         let cl = self.flatten(l);
         let cr = self.flatten(r);
         self.inner[me].child = [cl, cr];
@@ -294,10 +288,13 @@ impl Bvh {
         active: u32,
         mut leaf: F,
     ) {
+        if self.nodes.is_empty() {
+            return;
+        }
         let t_min = f32x4::splat(t_min as f32);
         let (entered, _) = rays.enter(&self.root32, t_min, lanes(t_max));
         let mut mask = active & entered;
-        if mask == 0 || self.nodes.is_empty() {
+        if mask == 0 {
             return;
         }
         // (subtree, its rays, their entry λ).

@@ -228,52 +228,26 @@ impl World {
             *f = self.viewpoint == Some(r.origin);
         }
         let mut best: [Option<Hit>; 4] = [None; 4];
-        // The rule of `closest_probed`, ray by ray, so the same hits.
-        let take = |best: &mut [Option<Hit>; 4],
-                    lane: usize,
-                    i: u32,
-                    found: Option<(f64, u32)>,
-                    limit: f64|
-         -> f64 { keep_first(&mut best[lane], i, found, limit) };
-        let test = |i: u32, lane: usize, limit: f64| {
-            self.intersect_object_from(
-                i,
-                &rays[lane],
-                from_view[lane],
-                t_min,
-                limit.next_up(),
-                &mut (),
-            )
-        };
         let mut limit = [t_max; 4];
-        for &i in &self.unbounded {
-            for (lane, l) in limit.iter_mut().enumerate() {
-                *l = take(&mut best, lane, i, test(i, lane, *l), *l);
+        // Object `i` for the rays of `active`, each taken by the rule of
+        // `closest_probed`, so the same hits. `next_up` lets an equal λ through.
+        let mut consider = |i: u32, active: u32, limit: &mut [f64; 4]| {
+            let s = &self.solids[i as usize];
+            let (mut object, mut below) = (*rays, [0.0; 4]);
+            for lane in lanes_of(active) {
+                object[lane] = s.object_ray(&rays[lane], from_view[lane]);
+                below[lane] = limit[lane].next_up();
             }
+            let found = s.shape.intersect4(&object, active, t_min, below);
+            for lane in lanes_of(active) {
+                limit[lane] = keep_first(&mut best[lane], i, found[lane], limit[lane]);
+            }
+        };
+        for &i in &self.unbounded {
+            consider(i, 0b1111, &mut limit);
         }
         self.bvh
-            .closest4(&slab, t_min, &mut limit, 0b1111, |i, active, limit| {
-                let s = &self.solids[i as usize];
-                if let Shape::Mesh(mesh) = &s.shape
-                    && active.count_ones() > 1
-                {
-                    // The rays that reach a mesh go through its triangles' BVH together.
-                    let (mut object, mut below) = (*rays, [0.0; 4]);
-                    for k in 0..4 {
-                        object[k] = s.object_ray(&rays[k], from_view[k]);
-                        below[k] = limit[k].next_up();
-                    }
-                    let found = mesh.intersect4(&object, active, t_min, below);
-                    for lane in lanes_of(active) {
-                        limit[lane] = take(&mut best, lane, i, found[lane], limit[lane]);
-                    }
-                } else {
-                    for lane in lanes_of(active) {
-                        limit[lane] =
-                            take(&mut best, lane, i, test(i, lane, limit[lane]), limit[lane]);
-                    }
-                }
-            });
+            .closest4(&slab, t_min, &mut limit, 0b1111, &mut consider);
         best
     }
 

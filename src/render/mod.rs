@@ -12,7 +12,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
-use crate::geometry::{Ray, Surface, World, ray::PRIMARY_LAMBDA_MIN};
+use crate::geometry::{Hit, Ray, Surface, World, ray::PRIMARY_LAMBDA_MIN};
 use crate::scene::Scene;
 pub use camera::PrimaryRays;
 pub use cost::{CostError, Estimate, RayBudget, TooCostly, Work};
@@ -100,7 +100,13 @@ impl Renderer {
         let ray = self.camera.pixel_ray::<C>(u, v);
         self.world
             .closest(&ray, PRIMARY_LAMBDA_MIN, f64::INFINITY)
-            .map(|h| shade::conventional_hit::<C>(&self.world, &ray, self.world.surface(&ray, &h)))
+            .map(|h| self.hit_record::<C>(&ray, &h))
+    }
+
+    /// The hit data of primary ray `ray`'s first hit `h`, under conventions `C`.
+    #[inline]
+    fn hit_record<C: Conventions>(&self, ray: &Ray, h: &Hit) -> Surface {
+        shade::conventional_hit::<C>(&self.world, ray, self.world.surface(ray, h))
     }
 }
 
@@ -125,13 +131,7 @@ impl Renderer {
             .closest4(&rays, PRIMARY_LAMBDA_MIN, f64::INFINITY);
         let mut out = [None; 4];
         for k in 0..4 {
-            if let Some(h) = &hits[k] {
-                out[k] = Some(shade::conventional_hit::<Lecture>(
-                    &self.world,
-                    &rays[k],
-                    self.world.surface(&rays[k], h),
-                ));
-            }
+            out[k] = hits[k].map(|h| self.hit_record::<Lecture>(&rays[k], &h));
         }
         out
     }
@@ -154,8 +154,6 @@ impl Renderer {
             .closest4(&primary, PRIMARY_LAMBDA_MIN, f64::INFINITY);
         let mut out = [DVec3::ZERO; 4];
         for k in 0..4 {
-            // What `Shader::trace_as` counts and does after its search.
-            rays.0 += 1;
             out[k] = shader.shade_as::<(), Lecture>(&primary[k], 0, hits[k], rays, &mut ());
         }
         Some(out)

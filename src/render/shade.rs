@@ -393,14 +393,13 @@ impl Shader<'_> {
         probe: &mut P,
     ) -> DVec3 {
         probe.ray(ray, depth, t_min);
-        rays.0 += 1;
         let closest = self.world.closest(ray, t_min, f64::INFINITY);
         self.shade_as::<P, C>(ray, depth, closest, rays, probe)
     }
 
     /// The colour `ray` brings back given its first hit `closest` (found by the caller,
     /// e.g. for a packet of primary rays, exactly as [`Shader::trace_as`] finds it):
-    /// everything [`Shader::trace_as`] does after its search.
+    /// everything [`Shader::trace_as`] does after its search, counting `ray` first.
     pub fn shade_as<P: ShadingProbe, C: Conventions>(
         &self,
         ray: &Ray,
@@ -409,6 +408,7 @@ impl Shader<'_> {
         rays: &mut RayCount,
         probe: &mut P,
     ) -> DVec3 {
+        rays.0 += 1;
         probe.closest(closest.as_ref());
         let Some(hit) = closest else {
             return self.scene.background;

@@ -51,20 +51,6 @@ impl Mesh {
         ]
     }
 
-    /// The closest triangle hit, `λ` and triangle, for each of the rays of `active`
-    /// (in object space), each within `(t_min, t_max[lane])`: what
-    /// [`CanonicalShape::intersect`] gives each alone, found by traversing the
-    /// triangles' BVH with the rays as a packet.
-    pub fn intersect4(
-        &self,
-        rays: &[Ray; 4],
-        active: u32,
-        t_min: f64,
-        t_max: [f64; 4],
-    ) -> [Option<(f64, u32)>; 4] {
-        self.accel().intersect4(rays, active, t_min, t_max)
-    }
-
     #[inline(always)]
     fn accel(&self) -> &MeshAccel {
         self.accel.get_or_init(|| MeshAccel::new(self))
@@ -126,6 +112,40 @@ impl CanonicalShape for Mesh {
         probe: &mut P,
     ) -> Option<(f64, u32)> {
         self.accel().intersect(ray, t_min, t_max, probe)
+    }
+
+    /// The rays of `active` traverse the triangles' BVH together (a lone ray goes on
+    /// its own), each tested and ranked as [`MeshAccel::intersect`] does.
+    fn intersect4(
+        &self,
+        rays: &[Ray; 4],
+        active: u32,
+        t_min: f64,
+        t_max: [f64; 4],
+    ) -> [Option<(f64, u32)>; 4] {
+        let a = self.accel();
+        let mut best: [Option<(f64, u32)>; 4] = [None; 4];
+        // A packet pays for more than one ray only.
+        let slab = (active.count_ones() > 1)
+            .then(|| SlabRay4::new(rays))
+            .flatten();
+        let Some(slab) = slab else {
+            for lane in lanes_of(active) {
+                best[lane] = a.intersect(&rays[lane], t_min, t_max[lane], &mut ());
+            }
+            return best;
+        };
+        let mut limits = t_max;
+        a.bvh
+            .closest4(&slab, t_min, &mut limits, active, |k, rays_in, limits| {
+                let (tri, id) = (&a.tris[k as usize], a.ids[k as usize]);
+                for lane in lanes_of(rays_in) {
+                    let limit = limits[lane];
+                    let hit = moller_trumbore(tri, &rays[lane], t_min, limit, id, &mut ());
+                    limits[lane] = keep_first(&mut best[lane], hit, id, limit);
+                }
+            });
+        best
     }
 
     #[inline(always)]
@@ -210,35 +230,6 @@ impl MeshAccel {
             let hit = moller_trumbore(&self.tris[k as usize], ray, t_min, limit, id, probe);
             keep_first(&mut best, hit, id, limit)
         });
-        best
-    }
-
-    /// [`MeshAccel::intersect`] for the rays of `active`, as a packet.
-    #[inline]
-    fn intersect4(
-        &self,
-        rays: &[Ray; 4],
-        active: u32,
-        t_min: f64,
-        t_max: [f64; 4],
-    ) -> [Option<(f64, u32)>; 4] {
-        let mut best: [Option<(f64, u32)>; 4] = [None; 4];
-        let Some(slab) = SlabRay4::new(rays) else {
-            for lane in lanes_of(active) {
-                best[lane] = self.intersect(&rays[lane], t_min, t_max[lane], &mut ());
-            }
-            return best;
-        };
-        let mut limits = t_max;
-        self.bvh
-            .closest4(&slab, t_min, &mut limits, active, |k, rays_in, limits| {
-                let (tri, id) = (&self.tris[k as usize], self.ids[k as usize]);
-                for lane in lanes_of(rays_in) {
-                    let limit = limits[lane];
-                    let hit = moller_trumbore(tri, &rays[lane], t_min, limit, id, &mut ());
-                    limits[lane] = keep_first(&mut best[lane], hit, id, limit);
-                }
-            });
         best
     }
 

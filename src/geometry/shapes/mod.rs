@@ -41,7 +41,7 @@ use glam::DVec3;
 pub use mesh::Mesh;
 
 use super::{
-    bounds::Aabb,
+    bounds::{Aabb, lanes_of},
     hit::{Face, Probe},
     ray::Ray,
     transform::Transform,
@@ -92,6 +92,25 @@ pub trait CanonicalShape {
         t_max: f64,
         probe: &mut P,
     ) -> Option<(f64, u32)>;
+
+    /// [`CanonicalShape::intersect`] for the rays of the bit set `active` (a packet,
+    /// in object space), each within `(t_min, t_max[lane])`, nothing recorded: by
+    /// default one ray at a time; a shape with its own hierarchy (a mesh) traverses
+    /// it once for all of them, with the same answers.
+    #[inline]
+    fn intersect4(
+        &self,
+        rays: &[Ray; 4],
+        active: u32,
+        t_min: f64,
+        t_max: [f64; 4],
+    ) -> [Option<(f64, u32)>; 4] {
+        let mut found = [None; 4];
+        for lane in lanes_of(active) {
+            found[lane] = self.intersect(&rays[lane], t_min, t_max[lane], &mut ());
+        }
+        found
+    }
 
     /// Whether anything is hit in `(t_min, t_max)` (shadow rays): by default the
     /// intersection with nothing recorded.
@@ -238,6 +257,21 @@ macro_rules! shapes {
                 match self {
                     $( Shape::$P => <$PT as CanonicalShape>::intersect(&$PT, ray, t_min, t_max, probe), )*
                     $( Shape::$D(s) => <$DT as CanonicalShape>::intersect(s, ray, t_min, t_max, probe), )*
+                }
+            }
+
+            /// See [`CanonicalShape::intersect4`].
+            #[inline(always)]
+            pub fn intersect4(
+                &self,
+                rays: &[Ray; 4],
+                active: u32,
+                t_min: f64,
+                t_max: [f64; 4],
+            ) -> [Option<(f64, u32)>; 4] {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::intersect4(&$PT, rays, active, t_min, t_max), )*
+                    $( Shape::$D(s) => <$DT as CanonicalShape>::intersect4(s, rays, active, t_min, t_max), )*
                 }
             }
 
