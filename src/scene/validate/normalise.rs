@@ -36,8 +36,8 @@ pub(crate) fn normalise(doc: &SceneDoc) -> SceneDoc {
         .collect();
     for o in &mut d.objects {
         o.material = Some(match &o.material {
-            None => MaterialRefDoc::Inline(full(&MaterialDoc::default())),
-            Some(MaterialRefDoc::Inline(m)) => MaterialRefDoc::Inline(full(m)),
+            None => MaterialRefDoc::Inline(Box::new(full(&MaterialDoc::default()))),
+            Some(MaterialRefDoc::Inline(m)) => MaterialRefDoc::Inline(Box::new(full(m))),
             Some(named) => named.clone(),
         });
         if o.transform.is_none() {
