@@ -7,6 +7,7 @@
 use std::sync::Arc;
 
 use glam::{DAffine3, DMat3, DVec3};
+use rayon::prelude::*;
 
 use super::{
     bounds::{Aabb, SlabRay, SlabRay4, lanes_of},
@@ -86,34 +87,38 @@ fn keep_first(best: &mut Option<Hit>, i: u32, found: Option<(f64, u32)>, limit: 
 impl World {
     /// Prepares `(shape, world_from_object)` pairs, in scene order, and builds the BVH.
     pub fn new<'a>(objects: impl IntoIterator<Item = (&'a Shape, &'a Transform)>) -> World {
-        let objects = objects.into_iter();
-        // Sized once: growing these by doubling copied and page-faulted them again and
-        // again for a scene of 100 000 objects.
-        let n = objects.size_hint().0;
-        let mut solids = Vec::with_capacity(n);
-        let mut placements = Vec::with_capacity(n);
-        let mut bounds = Vec::with_capacity(n);
-        let mut unbounded = Vec::new();
-        for (i, (shape, t)) in objects.enumerate() {
+        let objects: Vec<(&Shape, &Transform)> = objects.into_iter().collect();
+        // Meshes build their BVH here, each under its own lock and on this thread: a
+        // rayon job waiting on that lock could be the one that holds it.
+        for (shape, _) in &objects {
             shape.prepare();
-            match shape.world_bounds(t) {
-                Some(b) => bounds.push(b),
-                None => {
-                    bounds.push(Aabb::EMPTY);
-                    unbounded.push(i as u32);
-                }
-            }
-            solids.push(Solid {
-                object_from_world: t.inverse,
-                view_origin: DVec3::ZERO,
-                shape: shape.clone(),
-            });
-            placements.push(Placement {
-                world_from_object: *t,
-                normal_from_object: t.inverse.matrix3.transpose(),
-                closed: shape.is_closed(),
-            });
         }
+        // The rest is object by object, on every worker, collected in place: most of
+        // it is page faults of the new vectors (100 000 spheres: the build went from
+        // 0.092 to 0.078 s on two threads).
+        let (bounds, (solids, placements)): (Vec<_>, (Vec<_>, Vec<_>)) = objects
+            .par_iter()
+            .map(|&(shape, t)| {
+                let solid = Solid {
+                    object_from_world: t.inverse,
+                    view_origin: DVec3::ZERO,
+                    shape: shape.clone(),
+                };
+                let placement = Placement {
+                    world_from_object: *t,
+                    normal_from_object: t.inverse.matrix3.transpose(),
+                    closed: shape.is_closed(),
+                };
+                (shape.world_bounds(t), (solid, placement))
+            })
+            .unzip();
+        let unbounded = (0..bounds.len() as u32)
+            .filter(|&i| bounds[i as usize].is_none())
+            .collect();
+        let bounds: Vec<Aabb> = bounds
+            .into_par_iter()
+            .map(|b| b.unwrap_or(Aabb::EMPTY))
+            .collect();
         World {
             // No lock is held here (meshes were prepared above, each in its own).
             bvh: Bvh::build_in_parallel(&bounds),
