@@ -257,6 +257,11 @@ fn run_traced(
         });
         eprintln!("{line}");
     }
+    // The process ends with the command, and the operating system takes its memory
+    // back at once: dropping a large scene and its world would free their objects one
+    // by one first (about 10 ms of a 0.36 s command on 100 k spheres).
+    std::mem::forget(renderer);
+    std::mem::forget(scene);
     Ok(ExitCode::SUCCESS)
 }
 
