@@ -129,12 +129,14 @@ impl Bvh {
         } else {
             Builder::subtree(&mut prims, 0, parallel_from)
         };
+        // n nodes are (n + 1) / 2 leaves and (n − 1) / 2 inner nodes.
+        let (leaves, inner) = (built.nodes.len().div_ceil(2), built.nodes.len() / 2);
         let mut bvh = Bvh {
             nodes: built.nodes,
-            inner: Vec::new(),
-            inner32: Vec::new(),
+            inner: Vec::with_capacity(inner),
+            inner32: Vec::with_capacity(inner),
             root32: box32(&Aabb::EMPTY),
-            leaves: Vec::new(),
+            leaves: Vec::with_capacity(leaves),
             root: LEAF,
             order: built.order,
         };
@@ -428,7 +430,10 @@ impl Builder {
     /// `parallel_from` primitives built in parallel.
     fn subtree(prims: &mut [BuildPrim], depth: usize, parallel_from: usize) -> Builder {
         let mut b = Builder {
-            nodes: Vec::with_capacity(2 * prims.len() / MAX_LEAF_PRIMS + 1),
+            // A binary tree of n leaves has 2n − 1 nodes, and a leaf holds at least one
+            // primitive: reserved once, the vector is never copied to grow (reserved
+            // pages that stay unused are never touched).
+            nodes: Vec::with_capacity((2 * prims.len()).saturating_sub(1)),
             order: Vec::with_capacity(prims.len()),
             parallel_from,
         };

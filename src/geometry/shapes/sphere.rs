@@ -56,14 +56,6 @@ pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> 
     first_root(a, b, c, t_min, t_max, probe)
 }
 
-/// As [`intersect`] with `c = p₀·p₀ − 1` already known (rays sharing an origin).
-#[inline]
-pub fn intersect_with_c(ray: &Ray, c: f64, t_min: f64, t_max: f64) -> Option<f64> {
-    let a = ray.dir.dot(ray.dir);
-    let b = 2.0 * ray.origin.dot(ray.dir);
-    first_root(a, b, c, t_min, t_max, &mut ())
-}
-
 #[inline(always)]
 fn first_root<P: Probe>(
     a: f64,
