@@ -10,6 +10,7 @@
 
 use arrayvec::ArrayVec;
 use glam::DVec3;
+use rayon::prelude::*;
 
 use super::bounds::{Aabb, Box32, SlabRay, SlabRay4, box32, lanes};
 use wide::f32x4;
@@ -129,50 +130,73 @@ impl Bvh {
         } else {
             Builder::subtree(&mut prims, 0, parallel_from)
         };
-        // n nodes are (n + 1) / 2 leaves and (n − 1) / 2 inner nodes.
-        let (leaves, inner) = (built.nodes.len().div_ceil(2), built.nodes.len() / 2);
         let mut bvh = Bvh {
             nodes: built.nodes,
-            inner: Vec::with_capacity(inner),
-            inner32: Vec::with_capacity(inner),
+            inner: Vec::new(),
+            inner32: Vec::new(),
             root32: box32(&Aabb::EMPTY),
-            leaves: Vec::with_capacity(leaves),
+            leaves: Vec::new(),
             root: LEAF,
             order: built.order,
         };
         if !bvh.nodes.is_empty() {
-            bvh.root = bvh.flatten(0);
+            bvh.flatten(parallel_from != usize::MAX);
             bvh.root32 = box32(&bvh.bounds());
         }
         bvh
     }
 
-    /// Converts node `i` of the built tree (and its subtree) to the traversal layout;
-    /// returns its reference.
-    fn flatten(&mut self, i: usize) -> u32 {
-        let n = self.nodes[i];
-        if n.count > 0 {
-            self.leaves.push((n.offset, n.count as u32));
-            return LEAF | (self.leaves.len() as u32 - 1);
-        }
-        let me = self.inner.len();
-        let (l, r) = (i + 1, n.offset as usize);
-        let (a, b) = (self.nodes[l], self.nodes[r]);
-        self.inner.push(Inner {
-            min: [[a.min.x, b.min.x], [a.min.y, b.min.y], [a.min.z, b.min.z]],
-            max: [[a.max.x, b.max.x], [a.max.y, b.max.y], [a.max.z, b.max.z]],
-            child: [0, 0],
-        });
-        self.inner32.push([a, b].map(|c| {
-            box32(&Aabb {
-                min: c.min,
-                max: c.max,
+    /// Converts the built tree to the traversal layout. `nodes` lists the tree depth
+    /// first (a node, its first subtree, its second), so numbering its inner nodes and
+    /// its leaves apart, in that order, numbers them depth first too; each inner node
+    /// then takes its children's boxes, f64 and f32, on its own (on every worker when
+    /// `parallel`, where for 100 000 objects it was 14 ms on one thread).
+    fn flatten(&mut self, parallel: bool) {
+        let nodes = &self.nodes;
+        let (mut inner, mut leaves) = (0, 0);
+        // Each node's reference: `LEAF | its leaf number`, or its inner node number.
+        let refs: Vec<u32> = nodes
+            .iter()
+            .map(|n| {
+                let (count, tag) = if n.count > 0 {
+                    (&mut leaves, LEAF)
+                } else {
+                    (&mut inner, 0)
+                };
+                *count += 1;
+                tag | (*count - 1)
             })
-        }));
-        let cl = self.flatten(l);
-        let cr = self.flatten(r);
-        self.inner[me].child = [cl, cr];
-        me as u32
+            .collect();
+        self.leaves = nodes
+            .iter()
+            .filter(|n| n.count > 0)
+            .map(|n| (n.offset, n.count as u32))
+            .collect();
+        let interior: Vec<u32> = (0..nodes.len() as u32)
+            .filter(|&i| nodes[i as usize].count == 0)
+            .collect();
+        let node = |&i: &u32| {
+            let (l, r) = (i as usize + 1, nodes[i as usize].offset as usize);
+            let (a, b) = (nodes[l], nodes[r]);
+            let boxes = [a, b].map(|c| {
+                box32(&Aabb {
+                    min: c.min,
+                    max: c.max,
+                })
+            });
+            let node = Inner {
+                min: [[a.min.x, b.min.x], [a.min.y, b.min.y], [a.min.z, b.min.z]],
+                max: [[a.max.x, b.max.x], [a.max.y, b.max.y], [a.max.z, b.max.z]],
+                child: [refs[l], refs[r]],
+            };
+            (node, boxes)
+        };
+        (self.inner, self.inner32) = if parallel {
+            interior.par_iter().map(node).unzip()
+        } else {
+            interior.iter().map(node).unzip()
+        };
+        self.root = refs[0];
     }
 
     /// Number of primitives held.
@@ -647,6 +671,76 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The traversal layout numbers inner nodes and leaves in the order a depth-first
+    /// walk from the root meets them, each child's boxes are its subtree's, and the
+    /// layout flattened on every worker is the one flattened on one thread.
+    #[test]
+    fn the_layout_is_numbered_depth_first_on_one_thread_or_many() {
+        let boxes: Vec<Aabb> = (0..20_000)
+            .map(|i| {
+                let k = i as f64;
+                let c = DVec3::new((k * 0.37).sin(), (k * 0.61).cos(), (k * 0.13).sin()) * 40.0;
+                Aabb {
+                    min: c,
+                    max: c + DVec3::splat(0.1 + (i % 7) as f64 * 0.3),
+                }
+            })
+            .collect();
+        let one = Bvh::build(&boxes);
+        let many = Bvh::build_in_parallel(&boxes);
+        assert_eq!(one.root, many.root);
+        assert_eq!(one.leaves, many.leaves);
+        assert_eq!(one.inner32, many.inner32);
+        assert_eq!(one.inner.len(), many.inner.len());
+        for (a, b) in one.inner.iter().zip(&many.inner) {
+            assert_eq!((a.min, a.max, a.child), (b.min, b.max, b.child));
+        }
+        // Walking depth first from the root meets inner node 0, 1, 2, … and leaf 0,
+        // 1, 2, …; each child holds its subtree's boxes and leaves.
+        let (mut next_inner, mut next_leaf) = (0, 0);
+        let mut stack = vec![(one.root, one.bounds())];
+        let mut under = Vec::new();
+        while let Some((r, bounds)) = stack.pop() {
+            if r & LEAF != 0 {
+                assert_eq!(r & !LEAF, next_leaf);
+                next_leaf += 1;
+                let (start, count) = one.leaves[(r & !LEAF) as usize];
+                for &p in &one.order[start as usize..(start + count) as usize] {
+                    let b = boxes[p as usize].padded();
+                    assert!(
+                        bounds.union(&b) == bounds,
+                        "a leaf's box holds its primitives"
+                    );
+                    under.push(p);
+                }
+            } else {
+                assert_eq!(r, next_inner);
+                next_inner += 1;
+                let n = &one.inner[r as usize];
+                for k in [1, 0] {
+                    let child = Aabb {
+                        min: DVec3::new(n.min[0][k], n.min[1][k], n.min[2][k]),
+                        max: DVec3::new(n.max[0][k], n.max[1][k], n.max[2][k]),
+                    };
+                    let b32 = one.inner32[r as usize][k];
+                    for a in 0..3 {
+                        assert!(
+                            f64::from(b32[a]) <= child.min[a]
+                                && child.max[a] <= f64::from(b32[a + 3])
+                        );
+                    }
+                    stack.push((n.child[k], child));
+                }
+            }
+        }
+        assert_eq!(next_inner as usize, one.inner.len());
+        assert_eq!(next_leaf as usize, one.leaves.len());
+        assert_eq!(
+            under, one.order,
+            "the leaves hold the primitives in leaf order"
+        );
     }
 
     #[test]
