@@ -47,7 +47,8 @@ impl Solid {
 /// What only the closest hit's record reads.
 #[derive(Debug, Clone)]
 struct Placement {
-    world_from_object: Transform,
+    /// `world_from_object` (its inverse is the solid's `object_from_world`).
+    world_from_object: DAffine3,
     /// `(M⁻¹)ᵀ`, the 3 × 3 map of normals.
     normal_from_object: DMat3,
     closed: bool,
@@ -105,7 +106,7 @@ impl World {
                     shape: shape.clone(),
                 };
                 let placement = Placement {
-                    world_from_object: *t,
+                    world_from_object: t.forward,
                     normal_from_object: t.inverse.matrix3.transpose(),
                     closed: shape.is_closed(),
                 };
@@ -324,8 +325,11 @@ impl World {
     }
 
     /// The `world_from_object` transform of object `i`.
-    pub fn transform(&self, i: u32) -> &Transform {
-        &self.placements[i as usize].world_from_object
+    pub fn transform(&self, i: u32) -> Transform {
+        Transform {
+            forward: self.placements[i as usize].world_from_object,
+            inverse: self.solids[i as usize].object_from_world,
+        }
     }
 }
 
