@@ -359,6 +359,17 @@ pub fn lanes_of(mut bits: u32) -> impl Iterator<Item = usize> {
     })
 }
 
+/// `each(lane)` for the lanes of `bits`, `T::default()` in the others: a packet's
+/// rays taken one at a time.
+#[inline(always)]
+pub fn per_lane<T: Copy + Default>(bits: u32, mut each: impl FnMut(usize) -> T) -> [T; 4] {
+    let mut out = [T::default(); 4];
+    for lane in lanes_of(bits) {
+        out[lane] = each(lane);
+    }
+    out
+}
+
 /// `t` for each of four rays, as the `f32` lanes [`SlabRay4::enter`] takes.
 #[inline(always)]
 pub fn lanes(t: &[f64; 4]) -> f32x4 {

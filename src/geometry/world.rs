@@ -113,12 +113,15 @@ impl World {
                 (shape.world_bounds(t), (solid, placement))
             })
             .unzip();
-        let unbounded = (0..bounds.len() as u32)
-            .filter(|&i| bounds[i as usize].is_none())
-            .collect();
-        let bounds: Vec<Aabb> = bounds
-            .into_par_iter()
-            .map(|b| b.unwrap_or(Aabb::EMPTY))
+        let mut unbounded = Vec::new();
+        let bounds: Vec<Aabb> = (0..)
+            .zip(bounds)
+            .map(|(i, b)| {
+                b.unwrap_or_else(|| {
+                    unbounded.push(i);
+                    Aabb::EMPTY
+                })
+            })
             .collect();
         World {
             // No lock is held here (meshes were prepared above, each in its own).

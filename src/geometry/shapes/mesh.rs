@@ -13,7 +13,7 @@ use glam::DVec3;
 
 use super::CanonicalShape;
 use crate::geometry::{
-    bounds::{Aabb, SlabRay, SlabRay4, lanes_of},
+    bounds::{Aabb, SlabRay, SlabRay4, lanes_of, per_lane},
     bvh::Bvh,
     hit::{Probe, TriangleTest},
     ray::Ray,
@@ -124,17 +124,16 @@ impl CanonicalShape for Mesh {
         t_max: [f64; 4],
     ) -> [Option<(f64, u32)>; 4] {
         let a = self.accel();
-        let mut best: [Option<(f64, u32)>; 4] = [None; 4];
         // A packet pays for more than one ray only.
         let slab = (active.count_ones() > 1)
             .then(|| SlabRay4::new(rays))
             .flatten();
         let Some(slab) = slab else {
-            for lane in lanes_of(active) {
-                best[lane] = a.intersect(&rays[lane], t_min, t_max[lane], &mut ());
-            }
-            return best;
+            return per_lane(active, |lane| {
+                a.intersect(&rays[lane], t_min, t_max[lane], &mut ())
+            });
         };
+        let mut best: [Option<(f64, u32)>; 4] = [None; 4];
         let mut limits = t_max;
         a.bvh
             .closest4(&slab, t_min, &mut limits, active, |k, rays_in, limits| {

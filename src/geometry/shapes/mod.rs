@@ -41,7 +41,7 @@ use glam::DVec3;
 pub use mesh::Mesh;
 
 use super::{
-    bounds::{Aabb, lanes_of},
+    bounds::{Aabb, per_lane},
     hit::{Face, Probe},
     ray::Ray,
     transform::Transform,
@@ -105,11 +105,9 @@ pub trait CanonicalShape {
         t_min: f64,
         t_max: [f64; 4],
     ) -> [Option<(f64, u32)>; 4] {
-        let mut found = [None; 4];
-        for lane in lanes_of(active) {
-            found[lane] = self.intersect(&rays[lane], t_min, t_max[lane], &mut ());
-        }
-        found
+        per_lane(active, |lane| {
+            self.intersect(&rays[lane], t_min, t_max[lane], &mut ())
+        })
     }
 
     /// Whether anything is hit in `(t_min, t_max)` (shadow rays): by default the
