@@ -108,9 +108,11 @@ fn median_split(prims: &mut [BuildPrim], axis: usize) -> (usize, usize) {
 
 impl Bvh {
     /// Builds over `bounds[i]` for every `i`, on the calling thread; empty boxes are
-    /// left out.
-    pub fn build(bounds: &[Aabb]) -> Bvh {
-        Bvh::build_from(bounds, usize::MAX)
+    /// left out. `test_cost` is what testing a ray against one primitive costs, in
+    /// tests of a node's boxes: the surface area heuristic splits a few primitives
+    /// further, rather than leaving them in one leaf, the more a primitive costs.
+    pub fn build(bounds: &[Aabb], test_cost: f64) -> Bvh {
+        Bvh::build_from(bounds, test_cost, usize::MAX)
     }
 
     /// [`Bvh::build`], the two halves of every subtree of 8192 (`PARALLEL_PRIMS`) or more
@@ -118,11 +120,11 @@ impl Bvh {
     /// caller holding a lock that another job on the pool may ask for (a mesh building
     /// inside its `OnceLock`): while it waits for a half, a rayon thread runs other jobs,
     /// and one of them could wait for that lock, on the very thread that holds it.
-    pub fn build_in_parallel(bounds: &[Aabb]) -> Bvh {
-        Bvh::build_from(bounds, PARALLEL_PRIMS)
+    pub fn build_in_parallel(bounds: &[Aabb], test_cost: f64) -> Bvh {
+        Bvh::build_from(bounds, test_cost, PARALLEL_PRIMS)
     }
 
-    fn build_from(bounds: &[Aabb], parallel_from: usize) -> Bvh {
+    fn build_from(bounds: &[Aabb], test_cost: f64, parallel_from: usize) -> Bvh {
         let mut prims: Vec<BuildPrim> = bounds
             .iter()
             .enumerate()
@@ -139,7 +141,14 @@ impl Bvh {
         let built = if prims.is_empty() {
             Builder::default()
         } else {
-            Builder::subtree(&mut prims, 0, parallel_from)
+            Builder::subtree(
+                &mut prims,
+                0,
+                Split {
+                    test_cost,
+                    parallel_from,
+                },
+            )
         };
         let mut bvh = Bvh {
             nodes: built.nodes,
@@ -451,26 +460,33 @@ impl Bvh {
     }
 }
 
+/// How a build splits: a primitive's `test_cost` (see [`Bvh::build`]), and the size
+/// of subtree from which its halves are built in parallel.
+#[derive(Debug, Clone, Copy, Default)]
+struct Split {
+    test_cost: f64,
+    parallel_from: usize,
+}
+
 /// The binary tree being built: nodes in depth-first order (a node, its first subtree,
 /// its second), and the primitive indices in leaf order.
 #[derive(Default)]
 struct Builder {
     nodes: Vec<Node>,
     order: Vec<u32>,
-    parallel_from: usize,
+    split: Split,
 }
 
 impl Builder {
-    /// The tree over `prims`, its root at `depth`, the halves of subtrees of at least
-    /// `parallel_from` primitives built in parallel.
-    fn subtree(prims: &mut [BuildPrim], depth: usize, parallel_from: usize) -> Builder {
+    /// The tree over `prims`, its root at `depth`.
+    fn subtree(prims: &mut [BuildPrim], depth: usize, split: Split) -> Builder {
         let mut b = Builder {
             // A binary tree of n leaves has 2n − 1 nodes, and a leaf holds at least one
             // primitive: reserved once, the vector is never copied to grow (reserved
             // pages that stay unused are never touched).
             nodes: Vec::with_capacity((2 * prims.len()).saturating_sub(1)),
             order: Vec::with_capacity(prims.len()),
-            parallel_from,
+            split,
         };
         b.build_node(prims, depth);
         b
@@ -508,12 +524,12 @@ impl Builder {
                 self.order.extend(prims.iter().map(|p| p.index));
             }
             Some((_axis, mid)) => {
-                let parallel = prims.len() >= self.parallel_from;
+                let parallel = prims.len() >= self.split.parallel_from;
                 let (left, right) = prims.split_at_mut(mid);
                 if parallel {
                     let (l, r) = rayon::join(
-                        || Builder::subtree(left, depth + 1, self.parallel_from),
-                        || Builder::subtree(right, depth + 1, self.parallel_from),
+                        || Builder::subtree(left, depth + 1, self.split),
+                        || Builder::subtree(right, depth + 1, self.split),
                     );
                     self.append(l);
                     self.nodes[me].offset = self.nodes.len() as u32;
@@ -584,9 +600,11 @@ impl Builder {
                 best_bin = i;
             }
         }
-        // Traversal costs about as much as one primitive test.
-        let leaf_cost = bounds.half_area() * n as f64;
-        let split_cost = bounds.half_area() + best_cost;
+        // In tests of a node's boxes, for a ray entering this node: a leaf tests all n;
+        // a split tests the node's boxes, then the side it enters.
+        let c = self.split.test_cost;
+        let leaf_cost = c * bounds.half_area() * n as f64;
+        let split_cost = bounds.half_area() + c * best_cost;
         if best_bin == 0 || (n <= MAX_LEAF_PRIMS && leaf_cost <= split_cost) {
             if n <= MAX_LEAF_PRIMS {
                 return None;
@@ -622,7 +640,7 @@ mod tests {
         let boxes: Vec<Aabb> = (0..100)
             .map(|i| unit_box(DVec3::new(0.0, 0.0, i as f64 * 2.0)))
             .collect();
-        let bvh = Bvh::build(&boxes);
+        let bvh = Bvh::build(&boxes, 1.0);
         assert_eq!(bvh.len(), 100);
         let ray = SlabRay::new(DVec3::new(0.0, 0.0, -10.0), DVec3::Z);
         let mut tested = 0;
@@ -669,9 +687,13 @@ mod tests {
                 })
                 .collect()
         };
-        let whole = Builder::subtree(&mut prims(), 0, usize::MAX);
+        let at = |parallel_from| Split {
+            test_cost: 2.0,
+            parallel_from,
+        };
+        let whole = Builder::subtree(&mut prims(), 0, at(usize::MAX));
         for parallel_from in [2, 1000, PARALLEL_PRIMS] {
-            let split = Builder::subtree(&mut prims(), 0, parallel_from);
+            let split = Builder::subtree(&mut prims(), 0, at(parallel_from));
             assert_eq!(split.order, whole.order, "from {parallel_from}");
             assert_eq!(split.nodes.len(), whole.nodes.len());
             for (a, b) in split.nodes.iter().zip(&whole.nodes) {
@@ -699,8 +721,8 @@ mod tests {
                 }
             })
             .collect();
-        let one = Bvh::build(&boxes);
-        let many = Bvh::build_in_parallel(&boxes);
+        let one = Bvh::build(&boxes, 1.0);
+        let many = Bvh::build_in_parallel(&boxes, 1.0);
         assert_eq!(one.root, many.root);
         assert_eq!(one.leaves, many.leaves);
         assert_eq!(one.packet, many.packet);
@@ -757,9 +779,33 @@ mod tests {
     }
 
     #[test]
+    fn a_costlier_primitive_is_split_into_smaller_leaves() {
+        // A jittered grid of overlapping boxes, which the SAH would rather leave
+        // together than split.
+        let boxes: Vec<Aabb> = (0..4096)
+            .map(|i| {
+                let k = i as f64;
+                let c = DVec3::new((i % 16) as f64, ((i / 16) % 16) as f64, (i / 256) as f64);
+                let jitter = DVec3::new((k * 0.37).sin(), (k * 0.61).cos(), (k * 0.13).sin());
+                Aabb {
+                    min: c + jitter * 0.3,
+                    max: c + jitter * 0.3 + DVec3::splat(1.0 + (i % 5) as f64 * 0.5),
+                }
+            })
+            .collect();
+        let leaves = |test_cost| {
+            let bvh = Bvh::build(&boxes, test_cost);
+            assert_eq!(bvh.len(), boxes.len());
+            bvh.leaves.len()
+        };
+        let (one, two, four) = (leaves(1.0), leaves(2.0), leaves(4.0));
+        assert!(one < two && two < four, "{one} {two} {four} leaves");
+    }
+
+    #[test]
     fn identical_boxes_do_not_recurse_forever() {
         let boxes = vec![unit_box(DVec3::ZERO); 1000];
-        let bvh = Bvh::build(&boxes);
+        let bvh = Bvh::build(&boxes, 1.0);
         let ray = SlabRay::new(DVec3::new(0.0, 0.0, -10.0), DVec3::Z);
         assert_eq!(bvh.candidates(&ray, 0.0, f64::INFINITY).len(), 1000);
     }
@@ -769,7 +815,7 @@ mod tests {
         let boxes: Vec<Aabb> = (0..10)
             .map(|i| unit_box(DVec3::new(i as f64 * 3.0, 0.0, 0.0)))
             .collect();
-        let bvh = Bvh::build(&boxes);
+        let bvh = Bvh::build(&boxes, 1.0);
         let up = SlabRay::new(DVec3::new(9.0, -5.0, 0.0), DVec3::Y);
         assert!(bvh.any(&up, 0.0, f64::INFINITY, |p| p == 3));
         assert!(!bvh.any(&up, 0.0, 1.0, |_| true));
@@ -883,8 +929,9 @@ mod tests {
         fn tree_finds_what_every_box_finds(
             boxes in prop::collection::vec(grid_box(), 1..80),
             rays in prop::collection::vec(grazing_ray(), 1..40),
+            test_cost in prop_oneof![Just(1.0), Just(2.0), Just(4.0)],
         ) {
-            let bvh = Bvh::build(&boxes);
+            let bvh = Bvh::build(&boxes, test_cost);
             for (o, d) in rays {
                 let ray = SlabRay::new(o, d);
                 let fast = closest_of(&boxes, o, d, |leaf| {
@@ -911,8 +958,9 @@ mod tests {
             boxes in prop::collection::vec(grid_box(), 1..80),
             packets in prop::collection::vec(packet(), 1..12),
             active in 1u32..16,
+            test_cost in prop_oneof![Just(1.0), Just(2.0), Just(4.0)],
         ) {
-            let bvh = Bvh::build(&boxes);
+            let bvh = Bvh::build(&boxes, test_cost);
             for rays in packets {
                 let slab = SlabRay4::new(&rays.map(|(o, d)| Ray::new(o, d)))
                     .expect("no zero direction component");

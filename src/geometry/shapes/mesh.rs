@@ -163,6 +163,11 @@ impl CanonicalShape for Mesh {
     }
 }
 
+/// What testing a ray against a triangle costs, in tests of a BVH node's boxes (see
+/// [`Bvh::build`]): about one. Splitting meshes' leaves more eagerly (0.5) gave
+/// `mesh-100k` 0.2 % more instructions to trace, and 1.4 % at 0.25.
+const TRIANGLE_TEST_COST: f64 = 1.0;
+
 /// A triangle prepared for Möller–Trumbore.
 #[derive(Debug, Clone, Copy)]
 struct Tri {
@@ -191,7 +196,7 @@ impl MeshAccel {
             .collect();
         // On this thread: this runs inside the mesh's `OnceLock` (see
         // `Bvh::build_in_parallel`).
-        let bvh = Bvh::build(&bounds);
+        let bvh = Bvh::build(&bounds, TRIANGLE_TEST_COST);
         // The BVH's leaves name triangles in scene order; store them in leaf order so a
         // leaf's triangles sit together in memory, and remap the leaves to positions.
         let order = bvh.order().to_vec();
