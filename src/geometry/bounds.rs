@@ -5,6 +5,12 @@ use glam::{DAffine3, DVec3};
 use super::ray::Ray;
 use wide::{f32x4, f64x2};
 
+// The one module with `unsafe`: calling code compiled for AVX2, once the processor
+// is known to have it.
+#[cfg(target_arch = "x86_64")]
+#[allow(unsafe_code)]
+pub mod avx2;
+
 /// An axis-aligned box; empty when `min > max` on any axis.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Aabb {
@@ -221,6 +227,60 @@ pub fn box32(b: &Aabb) -> Box32 {
         hi(b.max.y),
         hi(b.max.z),
     ]
+}
+
+/// Both children's boxes of an inner node in single precision, each as [`box32`] makes
+/// it, axis by axis with the two children side by side (`min[axis][child]`), so that
+/// one 64-bit load reads a coordinate of both.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[repr(C, align(8))]
+pub struct BoxPair32 {
+    /// `min[axis][child]`.
+    pub min: [[f32; 2]; 3],
+    /// `max[axis][child]`.
+    pub max: [[f32; 2]; 3],
+}
+
+impl BoxPair32 {
+    /// Boxes `a` and `b`, rounded outward.
+    pub fn new(a: &Aabb, b: &Aabb) -> BoxPair32 {
+        let (a, b) = (box32(a), box32(b));
+        BoxPair32 {
+            min: [0, 1, 2].map(|k| [a[k], b[k]]),
+            max: [3, 4, 5].map(|k| [a[k], b[k]]),
+        }
+    }
+
+    /// Child `c`'s box.
+    #[inline(always)]
+    pub fn child(&self, c: usize) -> Box32 {
+        [
+            self.min[0][c],
+            self.min[1][c],
+            self.min[2][c],
+            self.max[0][c],
+            self.max[1][c],
+            self.max[2][c],
+        ]
+    }
+}
+
+/// Four rays tested against both children of an inner node: what a packet's traversal
+/// asks of its rays, in four lanes ([`SlabRay4`]) or, where the processor has them,
+/// eight ([`avx2::SlabRay8`]). Every implementation gives exactly what two calls of
+/// [`SlabRay4::enter`] give, bit for bit, so the traversal is the same whichever runs.
+pub trait PairTest {
+    /// [`SlabRay4::enter`] for each child of `b`, each ray within `[t_min, t_max]`
+    /// of its lane (`t_max` rounded to the nearest `f32`, as [`lanes`] does).
+    fn enter_pair(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 4]) -> [(u32, f32x4); 2];
+}
+
+impl PairTest for SlabRay4 {
+    #[inline(always)]
+    fn enter_pair(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 4]) -> [(u32, f32x4); 2] {
+        let (t_min, limit) = (f32x4::splat(t_min), lanes(t_max));
+        [0, 1].map(|c| self.enter(&b.child(c), t_min, limit))
+    }
 }
 
 /// The largest `f32` at most `x`.

@@ -12,7 +12,9 @@ use arrayvec::ArrayVec;
 use glam::DVec3;
 use rayon::prelude::*;
 
-use super::bounds::{Aabb, Box32, SlabRay, SlabRay4, box32, lanes};
+#[cfg(target_arch = "x86_64")]
+use super::bounds::avx2::Avx2;
+use super::bounds::{Aabb, Box32, BoxPair32, PairTest, SlabRay, SlabRay4, box32, lanes};
 use wide::f32x4;
 
 /// Primitives per leaf at most, when the SAH would rather not split.
@@ -61,7 +63,7 @@ struct Inner {
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[repr(C, align(64))]
 struct PacketNode {
-    boxes: [Box32; 2],
+    boxes: BoxPair32,
     /// As [`Inner::child`].
     child: [u32; 2],
 }
@@ -198,12 +200,11 @@ impl Bvh {
         let node = |&i: &u32| {
             let (l, r) = (i as usize + 1, nodes[i as usize].offset as usize);
             let (a, b) = (nodes[l], nodes[r]);
-            let boxes = [a, b].map(|c| {
-                box32(&Aabb {
-                    min: c.min,
-                    max: c.max,
-                })
+            let [ba, bb] = [a, b].map(|c| Aabb {
+                min: c.min,
+                max: c.max,
             });
+            let boxes = BoxPair32::new(&ba, &bb);
             let child = [refs[l], refs[r]];
             let node = Inner {
                 min: [[a.min.x, b.min.x], [a.min.y, b.min.y], [a.min.z, b.min.z]],
@@ -326,10 +327,36 @@ impl Bvh {
     /// give it, and maybe others, so a leaf function whose result does not depend on
     /// the order it sees primitives in (the closest hit, ties to the lowest index)
     /// finds for each ray what it finds alone. `t_min` is not negative.
+    ///
+    /// Where the processor has AVX2, each node's two boxes are tested in one pass of
+    /// eight lanes ([`SlabRay8`](super::bounds::avx2::SlabRay8)), by the same
+    /// operations, so the traversal and its results are the same.
     #[inline]
     pub fn closest4<F: FnMut(u32, u32, &mut [f64; 4])>(
         &self,
         rays: &SlabRay4,
+        t_min: f64,
+        t_max: &mut [f64; 4],
+        active: u32,
+        leaf: F,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(avx2) = Avx2::detect() {
+            return avx2.run(|| {
+                let eight = avx2.widen(rays);
+                self.traverse4(rays, &eight, t_min, t_max, active, leaf)
+            });
+        }
+        self.traverse4(rays, rays, t_min, t_max, active, leaf)
+    }
+
+    /// [`Bvh::closest4`], testing each node's boxes with `pairs` (`rays` themselves,
+    /// or the same rays in wider lanes).
+    #[inline(always)]
+    fn traverse4<P: PairTest, F: FnMut(u32, u32, &mut [f64; 4])>(
+        &self,
+        rays: &SlabRay4,
+        pairs: &P,
         t_min: f64,
         t_max: &mut [f64; 4],
         active: u32,
@@ -338,8 +365,8 @@ impl Bvh {
         if self.nodes.is_empty() {
             return;
         }
-        let t_min = f32x4::splat(t_min as f32);
-        let (entered, _) = rays.enter(&self.root32, t_min, lanes(t_max));
+        let t_min = t_min as f32;
+        let (entered, _) = rays.enter(&self.root32, f32x4::splat(t_min), lanes(t_max));
         let mut mask = active & entered;
         if mask == 0 {
             return;
@@ -355,9 +382,7 @@ impl Bvh {
                 }
             } else {
                 let n = &self.packet[cur as usize];
-                let limit = lanes(t_max);
-                let (m0, near0) = rays.enter(&n.boxes[0], t_min, limit);
-                let (m1, near1) = rays.enter(&n.boxes[1], t_min, limit);
+                let [(m0, near0), (m1, near1)] = pairs.enter_pair(&n.boxes, t_min, t_max);
                 let (m0, m1) = (m0 & mask, m1 & mask);
                 if m0 != 0 && m1 != 0 {
                     // The nearer child first, as the first ray that enters both sees it.
@@ -759,7 +784,7 @@ mod tests {
                     };
                     let p = &one.packet[r as usize];
                     assert_eq!(p.child[k], n.child[k]);
-                    let b32 = p.boxes[k];
+                    let b32 = p.boxes.child(k);
                     for a in 0..3 {
                         assert!(
                             f64::from(b32[a]) <= child.min[a]
@@ -964,21 +989,32 @@ mod tests {
             for rays in packets {
                 let slab = SlabRay4::new(&rays.map(|(o, d)| Ray::new(o, d)))
                     .expect("no zero direction component");
-                let mut best: [Option<(f64, u32)>; 4] = [None; 4];
-                let mut limits = [f64::INFINITY; 4];
-                bvh.closest4(&slab, 1e-9, &mut limits, active, |i, lanes, limits| {
-                    for lane in lanes_of(lanes) {
-                        let (o, d) = rays[lane];
-                        // The rule of `closest_of`, ray by ray.
-                        if let Some(t) = box_surface(&boxes[i as usize], o, d, 1e-9, limits[lane])
-                            && (t < limits[lane]
-                                || best[lane].is_some_and(|(bt, bi)| t == bt && i < bi))
-                        {
-                            best[lane] = Some((t, i));
-                            limits[lane] = t;
+                // The traversal as dispatched (eight lanes where the processor has
+                // AVX2) and the portable one of four lanes.
+                let mut found = [[None; 4]; 2];
+                for (portable, best) in found.iter_mut().enumerate() {
+                    let mut limits = [f64::INFINITY; 4];
+                    let leaf = |i: u32, lanes: u32, limits: &mut [f64; 4]| {
+                        for lane in lanes_of(lanes) {
+                            let (o, d) = rays[lane];
+                            // The rule of `closest_of`, ray by ray.
+                            if let Some(t) =
+                                box_surface(&boxes[i as usize], o, d, 1e-9, limits[lane])
+                                && (t < limits[lane]
+                                    || best[lane]
+                                        .is_some_and(|(bt, bi): (f64, u32)| t == bt && i < bi))
+                            {
+                                best[lane] = Some((t, i));
+                                limits[lane] = t;
+                            }
                         }
+                    };
+                    if portable == 1 {
+                        bvh.traverse4(&slab, &slab, 1e-9, &mut limits, active, leaf);
+                    } else {
+                        bvh.closest4(&slab, 1e-9, &mut limits, active, leaf);
                     }
-                });
+                }
                 for (lane, &(o, d)) in rays.iter().enumerate() {
                     let slow = closest_of(&boxes, o, d, |leaf| {
                         let mut limit = f64::INFINITY;
@@ -987,7 +1023,12 @@ mod tests {
                         }
                     });
                     let expected = if active >> lane & 1 == 1 { slow } else { None };
-                    prop_assert_eq!(best[lane], expected, "lane {} ray {:?} + λ {:?}", lane, o, d);
+                    for (portable, best) in found.iter().enumerate() {
+                        prop_assert_eq!(
+                            best[lane], expected,
+                            "portable {} lane {} ray {:?} + λ {:?}", portable, lane, o, d
+                        );
+                    }
                 }
             }
         }

@@ -245,26 +245,45 @@ impl World {
         }
         let mut best: [Option<Hit>; 4] = [None; 4];
         let mut limit = [t_max; 4];
-        // Object `i` for the rays of `active`, each taken by the rule of
-        // `closest_probed`, so the same hits. `next_up` lets an equal λ through.
-        let mut consider = |i: u32, active: u32, limit: &mut [f64; 4]| {
-            let s = &self.solids[i as usize];
-            let (mut object, mut below) = (*rays, [0.0; 4]);
-            for lane in lanes_of(active) {
-                object[lane] = s.object_ray(&rays[lane], from_view[lane]);
-                below[lane] = limit[lane].next_up();
-            }
-            let found = s.shape.intersect4(&object, active, t_min, below);
-            for lane in lanes_of(active) {
-                limit[lane] = keep_first(&mut best[lane], i, found[lane], limit[lane]);
-            }
-        };
         for &i in &self.unbounded {
-            consider(i, 0b1111, &mut limit);
+            self.consider4(i, rays, from_view, t_min, 0b1111, &mut limit, &mut best);
         }
-        self.bvh
-            .closest4(&slab, t_min, &mut limit, 0b1111, &mut consider);
+        self.bvh.closest4(
+            &slab,
+            t_min,
+            &mut limit,
+            0b1111,
+            // Inlined into each traversal that calls it (the BVH has one per lane width).
+            #[inline(always)]
+            |i, active, limit| self.consider4(i, rays, from_view, t_min, active, limit, &mut best),
+        );
         best
+    }
+
+    /// Object `i` for the rays of `active` (of [`World::closest4`]), each taken by the
+    /// rule of `closest_probed`, so the same hits. `next_up` lets an equal λ through.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn consider4(
+        &self,
+        i: u32,
+        rays: &[Ray; 4],
+        from_view: [bool; 4],
+        t_min: f64,
+        active: u32,
+        limit: &mut [f64; 4],
+        best: &mut [Option<Hit>; 4],
+    ) {
+        let s = &self.solids[i as usize];
+        let (mut object, mut below) = (*rays, [0.0; 4]);
+        for lane in lanes_of(active) {
+            object[lane] = s.object_ray(&rays[lane], from_view[lane]);
+            below[lane] = limit[lane].next_up();
+        }
+        let found = s.shape.intersect4(&object, active, t_min, below);
+        for lane in lanes_of(active) {
+            limit[lane] = keep_first(&mut best[lane], i, found[lane], limit[lane]);
+        }
     }
 
     /// Whether anything is hit in `(t_min, t_max)` (shadow rays).

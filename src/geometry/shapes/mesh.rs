@@ -136,14 +136,22 @@ impl CanonicalShape for Mesh {
         let mut best: [Option<(f64, u32)>; 4] = [None; 4];
         let mut limits = t_max;
         a.bvh
-            .closest4(&slab, t_min, &mut limits, active, |k, rays_in, limits| {
-                let (tri, id) = (&a.tris[k as usize], a.ids[k as usize]);
-                for lane in lanes_of(rays_in) {
-                    let limit = limits[lane];
-                    let hit = moller_trumbore(tri, &rays[lane], t_min, limit, id, &mut ());
-                    limits[lane] = keep_first(&mut best[lane], hit, id, limit);
-                }
-            });
+            // Inlined into each traversal that calls it (the BVH has one per lane width).
+            .closest4(
+                &slab,
+                t_min,
+                &mut limits,
+                active,
+                #[inline(always)]
+                |k, rays_in, limits| {
+                    let (tri, id) = (&a.tris[k as usize], a.ids[k as usize]);
+                    for lane in lanes_of(rays_in) {
+                        let limit = limits[lane];
+                        let hit = moller_trumbore(tri, &rays[lane], t_min, limit, id, &mut ());
+                        limits[lane] = keep_first(&mut best[lane], hit, id, limit);
+                    }
+                },
+            );
         best
     }
 
