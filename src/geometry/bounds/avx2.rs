@@ -93,17 +93,12 @@ impl PairTest for SlabRay8 {
 #[inline]
 #[target_feature(enable = "avx2")]
 fn widen(rays: &SlabRay4) -> SlabRay8 {
-    let mut out = SlabRay8 {
-        o_down: [_mm256_setzero_ps(); 3],
-        o_up: [_mm256_setzero_ps(); 3],
-        inv: [_mm256_setzero_ps(); 3],
-    };
-    for a in 0..3 {
-        out.o_down[a] = twice(bytemuck::cast(rays.o_down[a]));
-        out.o_up[a] = twice(bytemuck::cast(rays.o_up[a]));
-        out.inv[a] = twice(bytemuck::cast(rays.inv[a]));
+    let each = |x: [f32x4; 3]| x.map(|v| twice(bytemuck::cast(v)));
+    SlabRay8 {
+        o_down: each(rays.o_down),
+        o_up: each(rays.o_up),
+        inv: each(rays.inv),
     }
-    out
 }
 
 /// `[x₀ x₀ x₁ x₁ x₂ x₂ x₃ x₃]`.
