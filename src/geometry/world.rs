@@ -295,10 +295,7 @@ impl World {
             s.shape
                 .occludes(&s.object_ray(ray, from_view), t_min, t_max)
         };
-        self.unbounded.iter().any(|&i| test(i))
-            || self
-                .bvh
-                .any(&SlabRay::new(ray.origin, ray.dir), t_min, t_max, test)
+        self.unbounded.iter().any(|&i| test(i)) || self.bvh.any(ray, t_min, t_max, test)
     }
 
     /// The first hit found by testing every object in order, without the BVH: the

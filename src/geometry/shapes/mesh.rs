@@ -258,10 +258,13 @@ impl MeshAccel {
     /// Whether any triangle is hit in `(t_min, t_max)`.
     #[inline]
     fn occludes(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
-        let slab = SlabRay::new(ray.origin, ray.dir);
-        self.bvh.any(&slab, t_min, t_max, |k| {
-            moller_trumbore(&self.tris[k as usize], ray, t_min, t_max, 0, &mut ()).is_some()
-        })
+        self.bvh.any(
+            ray,
+            t_min,
+            t_max,
+            #[inline(always)]
+            |k| moller_trumbore(&self.tris[k as usize], ray, t_min, t_max, 0, &mut ()).is_some(),
+        )
     }
 }
 
