@@ -1,6 +1,8 @@
 //! A bounding volume hierarchy: binned surface-area-heuristic build, flat node arrays
-//! whose interior nodes hold both children's boxes, nearer-child-first traversal. Used over a scene's objects (world space) and over a
-//! mesh's triangles (object space), so the cost of a ray grows with the logarithm of the
+//! whose interior nodes hold both children's boxes, nearer-child-first traversal, and
+//! for rays that ask only whether anything blocks them, the same tree collapsed to four
+//! children a node. Used over a scene's objects (world space) and over a mesh's
+//! triangles (object space), so the cost of a ray grows with the logarithm of the
 //! number of primitives.
 //!
 //! Boxes are padded by a tiny relative margin and the slab test rounds its far distance
@@ -560,11 +562,7 @@ impl Bvh {
         let mut cur = self.wide_root;
         loop {
             if cur & LEAF != 0 {
-                let (start, count) = self.leaves[(cur & !LEAF) as usize];
-                if self.order[start as usize..(start + count) as usize]
-                    .iter()
-                    .any(|&p| leaf(p))
-                {
+                if self.leaf_any(cur, &mut leaf) {
                     return true;
                 }
             } else {
@@ -601,6 +599,15 @@ impl Bvh {
         }
     }
 
+    /// Whether `leaf(prim)` is true for some primitive of leaf `reference`.
+    #[inline(always)]
+    fn leaf_any<F: FnMut(u32) -> bool>(&self, reference: u32, leaf: &mut F) -> bool {
+        let (start, count) = self.leaves[(reference & !LEAF) as usize];
+        self.order[start as usize..(start + count) as usize]
+            .iter()
+            .any(|&p| leaf(p))
+    }
+
     /// [`Bvh::any`] through the binary tree, its boxes tested in double precision.
     #[inline(always)]
     fn any_exact<F: FnMut(u32) -> bool>(
@@ -620,11 +627,7 @@ impl Bvh {
         let mut cur = self.root;
         loop {
             if cur & LEAF != 0 {
-                let (start, count) = self.leaves[(cur & !LEAF) as usize];
-                if self.order[start as usize..(start + count) as usize]
-                    .iter()
-                    .any(|&p| leaf(p))
-                {
+                if self.leaf_any(cur, &mut leaf) {
                     return true;
                 }
             } else {
