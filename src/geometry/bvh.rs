@@ -603,9 +603,14 @@ impl Bvh {
     #[inline(always)]
     fn leaf_any<F: FnMut(u32) -> bool>(&self, reference: u32, leaf: &mut F) -> bool {
         let (start, count) = self.leaves[(reference & !LEAF) as usize];
-        self.order[start as usize..(start + count) as usize]
-            .iter()
-            .any(|&p| leaf(p))
+        // A loop, not `Iterator::any`: that was left a call, and the leaf function
+        // with it.
+        for &p in &self.order[start as usize..(start + count) as usize] {
+            if leaf(p) {
+                return true;
+            }
+        }
+        false
     }
 
     /// [`Bvh::any`] through the binary tree, its boxes tested in double precision.
