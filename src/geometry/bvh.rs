@@ -79,7 +79,7 @@ struct PacketNode {
 /// A node of the four-wide tree that a lone ray looking for any hit traverses
 /// ([`Bvh::any`]): up to four subtrees of the binary tree, collapsed, with their boxes
 /// in single precision lane by lane, so that one pass of four lanes tests them all.
-/// A shadow ray visits about a third as many of them as of binary nodes, and needs no
+/// A shadow ray visits about half as many of them as of binary nodes, and needs no
 /// order among the children it enters.
 #[derive(Debug, Clone, Copy)]
 #[repr(C, align(64))]
