@@ -292,7 +292,8 @@ impl PairTest for SlabRay4 {
 #[inline(always)]
 fn round_down(x: f64) -> f32 {
     let y = x as f32;
-    let (bits, negative) = (y.to_bits(), y.to_bits() >> 31);
+    let bits = y.to_bits();
+    let negative = bits >> 31;
     let step = (negative << 1).wrapping_sub(1);
     f32::from_bits(bits.wrapping_add(((y as f64) > x) as u32 * step))
 }
@@ -302,7 +303,8 @@ fn round_down(x: f64) -> f32 {
 #[inline(always)]
 fn round_up(x: f64) -> f32 {
     let y = x as f32;
-    let (bits, negative) = (y.to_bits(), y.to_bits() >> 31);
+    let bits = y.to_bits();
+    let negative = bits >> 31;
     let step = 1u32.wrapping_sub(negative << 1);
     f32::from_bits(bits.wrapping_add(((y as f64) < x) as u32 * step))
 }

@@ -285,17 +285,14 @@ impl Bvh {
             slots[k] = a;
             slots.insert(k + 1, b);
         }
+        // The node's place first, so that its subtrees follow it (depth first).
         let at = wide.len();
-        wide.push(WideNode {
-            planes: [f32x4::ZERO; 6],
-            child: [LEAF; 4],
-            used: 0,
-        });
         let mut n = WideNode {
             planes: [f32x4::ZERO; 6],
             child: [LEAF; 4],
             used: (1 << slots.len()) - 1,
         };
+        wide.push(n);
         let mut planes = [[0f32; 4]; 6];
         for (c, &(r, b)) in slots.iter().enumerate() {
             n.child[c] = if r & LEAF != 0 {
@@ -524,8 +521,7 @@ impl Bvh {
     /// The four-wide tree is traversed, its boxes tested in single precision
     /// ([`SlabRay4::enter_lanes`], the ray in every lane), where there is one (see
     /// [`WIDE_FROM`]) and the ray's numbers fit that test; otherwise the binary tree in
-    /// double precision. Neither misses a box
-    /// the ray enters, so the answer is the same.
+    /// double precision. Neither misses a box the ray enters, so the answer is the same.
     #[inline]
     pub fn any<F: FnMut(u32) -> bool>(&self, ray: &Ray, t_min: f64, t_max: f64, leaf: F) -> bool {
         let lanes = if self.wide.is_empty() {
@@ -539,7 +535,8 @@ impl Bvh {
         }
     }
 
-    /// [`Bvh::any`] through the four-wide tree.
+    /// [`Bvh::any`] through the four-wide tree (which exists only for a tree of
+    /// [`WIDE_FROM`] inner nodes or more, so never for an empty one).
     #[inline(always)]
     fn any_wide<F: FnMut(u32) -> bool>(
         &self,
@@ -548,9 +545,6 @@ impl Bvh {
         t_max: f64,
         mut leaf: F,
     ) -> bool {
-        if self.nodes.is_empty() {
-            return false;
-        }
         // Rounded to the nearest `f32`, as a packet's limits are (`lanes`).
         let (t_min, t_max) = (f32x4::splat(t_min as f32), f32x4::splat(t_max as f32));
         if ray.enter(&self.root32, t_min, t_max).0 == 0 {
