@@ -22,7 +22,6 @@
 //!    rows in order, one at a time, so the file grows while later bands are still out
 //!    and its bytes depend only on the pixels.
 
-use std::fs::File;
 use std::io::IsTerminal;
 use std::path::Path;
 use std::process::ExitCode;
@@ -41,7 +40,7 @@ use super::TraceOptions;
 use super::input::{read_input, scene_error};
 use super::remote::{client_builder, server_url};
 use crate::format::png::PngReader;
-use crate::output::PngSink;
+use crate::output::{OutputFile, PngSink};
 use crate::render::{Rect, Tile, TileSink};
 use crate::scene::{self, Limits};
 
@@ -303,7 +302,7 @@ fn next_wake(jobs: &[Job], servers: &[ServerSlot], per_server: u32) -> Option<In
 }
 
 /// The band writer all requests share.
-type Sink = PngSink<File>;
+type Sink = PngSink<OutputFile>;
 
 /// What the requests need, cheap to clone into each.
 #[derive(Clone)]
@@ -351,8 +350,8 @@ pub fn render(
         .build()
         .context("cannot set up the HTTP client")?;
 
-    let file =
-        File::create(output).with_context(|| format!("cannot create {}", output.display()))?;
+    let file = OutputFile::create(output)
+        .with_context(|| format!("cannot create {}", output.display()))?;
     let summary = match render_into(file, region, &bands, &servers, client, bytes, remote) {
         Ok(s) => s,
         Err(e) => {
@@ -381,7 +380,7 @@ pub fn render(
 
 /// Renders `bands` of `region` on `servers` into a PNG written to `file`.
 fn render_into(
-    file: File,
+    file: OutputFile,
     region: Rect,
     bands: &[Rect],
     servers: &[String],
@@ -397,7 +396,7 @@ fn render_into(
     let ctx = Remote {
         client,
         scene: Bytes::from(scene),
-        sink: Arc::new(PngSink::new(file, region).context("cannot start the PNG")?),
+        sink: Arc::new(PngSink::new(file.clone(), region).context("cannot start the PNG")?),
     };
     let bar = progress_bar(bands.len() as u64);
     let summary = runtime.block_on(run_bands(
@@ -417,6 +416,7 @@ fn render_into(
     let sink = Arc::try_unwrap(ctx.sink)
         .map_err(|_| anyhow::anyhow!("internal error: a region was still being written"))?;
     sink.finish().context("cannot finish the PNG")?;
+    file.commit().context("cannot finish the PNG")?;
     Ok(summary)
 }
 

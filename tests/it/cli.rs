@@ -92,3 +92,38 @@ fn hits_writes_csv_that_reads_back_as_the_json_and_grades_clean() {
     );
     assert_eq!(stdout_json(&out)["failing_pixels"], 0);
 }
+
+/// An output file that already exists is written over in place; what the command leaves
+/// is exactly what it writes to a new file, whether the old file was longer or shorter,
+/// in every format.
+#[test]
+fn writing_over_an_existing_file_leaves_the_bytes_of_a_new_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = resized_scene(&dir, "showcase.json", 40, 30);
+    let write = |cmd: &str, name: &str| {
+        let p = dir.path().join(name);
+        let out = run(&[cmd, scene.to_str().unwrap(), "-o", p.to_str().unwrap()]);
+        assert!(
+            out.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        std::fs::read(p).unwrap()
+    };
+    for (cmd, ext) in [
+        ("hits", "npy"),
+        ("hits", "json"),
+        ("hits", "csv"),
+        ("render", "png"),
+    ] {
+        let fresh = write(cmd, &format!("fresh.{ext}"));
+        for old in [fresh.len() * 3, fresh.len() / 2, 10] {
+            let name = format!("old-{old}.{ext}");
+            std::fs::write(dir.path().join(&name), vec![0xab; old]).unwrap();
+            assert!(
+                write(cmd, &name) == fresh,
+                "{cmd} over {old} bytes differs from a new {ext}"
+            );
+        }
+    }
+}
