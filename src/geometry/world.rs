@@ -236,8 +236,13 @@ impl World {
     /// the one it finds alone, bit for bit. Rays whose numbers the packet's
     /// single-precision test does not take are traced one at a time.
     pub fn closest4(&self, rays: &[Ray; 4], t_min: f64, t_max: f64) -> [Option<Hit>; 4] {
-        let Some(slab) = SlabRay4::new(rays) else {
-            return rays.map(|r| self.closest(&r, t_min, t_max));
+        let lone = self.lone();
+        let slab = match lone {
+            Some(_) => None,
+            None => match SlabRay4::new(rays) {
+                Some(slab) => Some(slab),
+                None => return rays.map(|r| self.closest(&r, t_min, t_max)),
+            },
         };
         let mut from_view = [false; 4];
         for (f, r) in from_view.iter_mut().zip(rays) {
@@ -248,15 +253,23 @@ impl World {
         for &i in &self.unbounded {
             self.consider4(i, rays, from_view, t_min, 0b1111, &mut limit, &mut best);
         }
-        self.bvh.closest4(
-            &slab,
-            t_min,
-            &mut limit,
-            0b1111,
-            // Inlined into each traversal that calls it (the BVH has one per lane width).
-            #[inline(always)]
-            |i, active, limit| self.consider4(i, rays, from_view, t_min, active, limit, &mut best),
-        );
+        if let Some(i) = lone {
+            self.consider4(i, rays, from_view, t_min, 0b1111, &mut limit, &mut best);
+        }
+        if let Some(slab) = slab {
+            self.bvh.closest4(
+                &slab,
+                t_min,
+                &mut limit,
+                0b1111,
+                // Inlined into each traversal that calls it (the BVH has one per lane
+                // width).
+                #[inline(always)]
+                |i, active, limit| {
+                    self.consider4(i, rays, from_view, t_min, active, limit, &mut best)
+                },
+            );
+        }
         best
     }
 
@@ -295,7 +308,23 @@ impl World {
             s.shape
                 .occludes(&s.object_ray(ray, from_view), t_min, t_max)
         };
-        self.unbounded.iter().any(|&i| test(i)) || self.bvh.any(ray, t_min, t_max, test)
+        self.unbounded.iter().any(|&i| test(i))
+            || match self.lone() {
+                Some(i) => test(i),
+                None => self.bvh.any(ray, t_min, t_max, test),
+            }
+    }
+
+    /// The object of a tree that holds one (a scene of one mesh, say): its own test is
+    /// the tree's, so a packet or a shadow ray goes to it directly, without setting up
+    /// the tree's test of the same bounds (for `mesh-100k`, a packet's second
+    /// single-precision set-up).
+    #[inline(always)]
+    fn lone(&self) -> Option<u32> {
+        match self.bvh.order() {
+            &[i] => Some(i),
+            _ => None,
+        }
     }
 
     /// The first hit found by testing every object in order, without the BVH: the
