@@ -26,7 +26,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::DVec3;
 
-use super::shade::{Bounce, Branch, RayCount, Shader, ShadingProbe};
+use super::shade::{Branch, RayCount, Shader, ShadingProbe};
 use super::{Cancel, Rect, Renderer};
 use crate::geometry::{Hit, Surface, ray::PRIMARY_LAMBDA_MIN};
 use crate::scene::document::MaterialRefDoc;
@@ -267,7 +267,7 @@ impl ShadingProbe for Branching<'_> {
             .map(|o| o.material);
     }
 
-    fn secondary(&mut self, _branch: Branch, _bounce: &Bounce) -> Self {
+    fn secondary(&mut self, _branch: Branch, _total_internal_reflection: bool) -> Self {
         if let Some(seen) = self.at.and_then(|m| self.seen.get(m as usize)) {
             seen.set(true);
         }

@@ -159,17 +159,6 @@ impl LightTerm {
     }
 }
 
-/// The directions a surface sends secondary rays in.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Bounce {
-    /// The mirror ray.
-    pub reflected: Ray,
-    /// The refracted ray, or the reflected one under total internal reflection.
-    pub refracted: Ray,
-    /// Whether the refracted ray is really a total internal reflection.
-    pub total_internal_reflection: bool,
-}
-
 /// The normal turned to face the incoming ray.
 #[inline]
 pub fn facing_normal(s: &Surface, dir: DVec3) -> DVec3 {
@@ -252,23 +241,31 @@ pub fn light_term_as<C: Conventions>(
     term
 }
 
-/// The reflected and refracted rays at a surface point hit along `dir`, with `ior` the
-/// material's index (entering from air when the ray meets the outside of the surface).
+/// The mirror ray at a surface point hit along `dir`, `n` the normal facing the ray.
 // Always inlined, as `unshadowed_light_term` is.
 #[inline(always)]
-pub fn bounce(s: &Surface, n: DVec3, dir: DVec3, ior: f64) -> Bounce {
-    bounce_as::<Lecture>(s, n, dir, ior)
+pub fn reflected_ray(s: &Surface, n: DVec3, dir: DVec3) -> Ray {
+    let i = dir.normalize();
+    let outside = s.point + n * surface_offset(s.point);
+    let cos_i = -n.dot(i);
+    Ray::new(outside, i + 2.0 * cos_i * n)
 }
 
-/// [`bounce`] under conventions `C`.
+/// The refracted ray at a surface point hit along `dir`, with `ior` the material's
+/// index (entering from air when the ray meets the outside of the surface), under
+/// conventions `C`; `None` under total internal reflection (where the refraction's
+/// weight goes to the mirror ray). Apart from [`reflected_ray`], so that a surface
+/// that only reflects (most mirrors) never pays for this one's two square roots.
 #[inline(always)]
-pub fn bounce_as<C: Conventions>(s: &Surface, n: DVec3, dir: DVec3, ior: f64) -> Bounce {
+pub fn refracted_ray_as<C: Conventions>(
+    s: &Surface,
+    n: DVec3,
+    dir: DVec3,
+    ior: f64,
+) -> Option<Ray> {
     let i = dir.normalize();
-    let off = surface_offset(s.point);
-    let outside = s.point + n * off;
-    let inside = s.point - n * off;
+    let inside = s.point - n * surface_offset(s.point);
     let cos_i = -n.dot(i);
-    let reflected = Ray::new(outside, i + 2.0 * cos_i * n);
     let eta = if s.front != C::INVERTED_ETA {
         1.0 / ior
     } else {
@@ -276,18 +273,10 @@ pub fn bounce_as<C: Conventions>(s: &Surface, n: DVec3, dir: DVec3, ior: f64) ->
     };
     let k = 1.0 - eta * eta * (1.0 - cos_i * cos_i);
     if k < 0.0 {
-        Bounce {
-            reflected,
-            refracted: reflected,
-            total_internal_reflection: true,
-        }
+        None
     } else {
         let t = eta * i + (eta * cos_i - k.sqrt()) * n;
-        Bounce {
-            reflected,
-            refracted: Ray::new(inside, t.normalize()),
-            total_internal_reflection: false,
-        }
+        Some(Ray::new(inside, t.normalize()))
     }
 }
 
@@ -333,9 +322,9 @@ pub trait ShadingProbe: Sized {
     /// The hit sends no secondary rays, and why.
     #[inline(always)]
     fn no_secondary(&mut self, _why: NoSecondary) {}
-    /// A secondary ray of `branch` is about to be traced (its ray is in `bounce`): the
-    /// probe that follows it.
-    fn secondary(&mut self, branch: Branch, bounce: &Bounce) -> Self;
+    /// A secondary ray of `branch` is about to be traced (a refraction's ray is the
+    /// mirror ray when `total_internal_reflection`): the probe that follows it.
+    fn secondary(&mut self, branch: Branch, total_internal_reflection: bool) -> Self;
     /// The secondary ray of `branch` came back with `colour`; `coefficient ⊙ colour` is
     /// the `contribution` added to this ray's colour.
     #[inline(always)]
@@ -352,7 +341,7 @@ pub trait ShadingProbe: Sized {
 
 impl ShadingProbe for () {
     #[inline(always)]
-    fn secondary(&mut self, _branch: Branch, _bounce: &Bounce) {}
+    fn secondary(&mut self, _branch: Branch, _total_internal_reflection: bool) {}
 }
 
 /// A scene and its world, ready to shade rays.
@@ -451,32 +440,38 @@ impl Shader<'_> {
         } {
             probe.no_secondary(NoSecondary::MaxDepth);
         } else {
-            let b = bounce_as::<C>(&s, n, ray.dir, m.ior);
-            for (branch, coefficient, next, traced) in [
-                (Branch::Reflection, m.mirror, &b.reflected, C::REFLECTION),
-                (
-                    Branch::Refraction,
-                    m.transmission,
-                    &b.refracted,
-                    C::REFRACTION,
-                ),
-            ] {
-                if traced && coefficient != DVec3::ZERO {
-                    let mut child = probe.secondary(branch, &b);
-                    let colour = self.trace_as::<P, C>(
-                        next,
-                        depth + 1,
-                        SECONDARY_LAMBDA_MIN,
-                        rays,
-                        &mut child,
-                    );
-                    let add = coefficient * colour;
-                    probe.secondary_done(branch, child, coefficient, colour, add);
-                    c += add;
-                }
+            // Each ray is made only for a branch that is traced.
+            if C::REFLECTION && m.mirror != DVec3::ZERO {
+                let next = reflected_ray(&s, n, ray.dir);
+                let follow = (Branch::Reflection, false, m.mirror);
+                c += self.secondary_as::<P, C>(follow, &next, depth, rays, probe);
+            }
+            if C::REFRACTION && m.transmission != DVec3::ZERO {
+                let refracted = refracted_ray_as::<C>(&s, n, ray.dir, m.ior);
+                let next = refracted.unwrap_or_else(|| reflected_ray(&s, n, ray.dir));
+                let follow = (Branch::Refraction, refracted.is_none(), m.transmission);
+                c += self.secondary_as::<P, C>(follow, &next, depth, rays, probe);
             }
         }
         c
+    }
+
+    /// What the secondary ray `next` of a hit at `depth` adds to its colour: `branch`,
+    /// whether it is a total internal reflection, and its weight (`follow`).
+    #[inline(always)]
+    fn secondary_as<P: ShadingProbe, C: Conventions>(
+        &self,
+        (branch, total_internal_reflection, coefficient): (Branch, bool, DVec3),
+        next: &Ray,
+        depth: u32,
+        rays: &mut RayCount,
+        probe: &mut P,
+    ) -> DVec3 {
+        let mut child = probe.secondary(branch, total_internal_reflection);
+        let colour = self.trace_as::<P, C>(next, depth + 1, SECONDARY_LAMBDA_MIN, rays, &mut child);
+        let add = coefficient * colour;
+        probe.secondary_done(branch, child, coefficient, colour, add);
+        add
     }
 }
 
@@ -524,7 +519,7 @@ mod tests {
         fn light(&mut self, _i: usize, _l: &Light, _t: &LightTerm, blocked: Option<bool>) {
             self.shadow_rays += blocked.is_some() as u64;
         }
-        fn secondary(&mut self, _branch: Branch, _bounce: &Bounce) -> Self {
+        fn secondary(&mut self, _branch: Branch, _tir: bool) -> Self {
             Tally::default()
         }
         fn secondary_done(&mut self, _b: Branch, child: Self, k: DVec3, c: DVec3, add: DVec3) {

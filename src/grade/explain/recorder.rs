@@ -17,7 +17,7 @@ use crate::geometry::hit::{FaceTest, Probe, QuadraticTest, TriangleTest};
 use crate::geometry::{Hit, Ray, Shape, Surface, World};
 use crate::render::Renderer;
 use crate::render::shade::{
-    Bounce, Branch, LightTerm, NoSecondary, SECONDARY_LAMBDA_MIN, ShadingProbe, surface_offset,
+    Branch, LightTerm, NoSecondary, SECONDARY_LAMBDA_MIN, ShadingProbe, surface_offset,
 };
 use crate::scene::{Light, Material};
 
@@ -604,10 +604,10 @@ impl ShadingProbe for Recorder<'_> {
         });
     }
 
-    fn secondary(&mut self, branch: Branch, bounce: &Bounce) -> Self {
+    fn secondary(&mut self, branch: Branch, total_internal_reflection: bool) -> Self {
         let role = match branch {
             Branch::Reflection => Role::Reflected,
-            Branch::Refraction if bounce.total_internal_reflection => Role::TotalInternalReflection,
+            Branch::Refraction if total_internal_reflection => Role::TotalInternalReflection,
             Branch::Refraction => Role::Refracted,
         };
         if !self.full() {
