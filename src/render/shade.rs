@@ -255,7 +255,7 @@ pub fn reflected_ray(s: &Surface, n: DVec3, dir: DVec3) -> Ray {
 /// index (entering from air when the ray meets the outside of the surface), under
 /// conventions `C`; `None` under total internal reflection (where the refraction's
 /// weight goes to the mirror ray). Apart from [`reflected_ray`], so that a surface
-/// that only reflects (most mirrors) never pays for this one's two square roots.
+/// that only reflects (most mirrors) never pays for this one's square roots.
 #[inline(always)]
 pub fn refracted_ray_as<C: Conventions>(
     s: &Surface,
