@@ -226,7 +226,10 @@ fn run_traced(
     let mut timing = Timing::default();
     let result = pool
         .install(|| body(&renderer, region, opts.tile, file.clone(), &mut timing))
-        .and_then(|stats| Ok(file.commit().map(|()| stats)?));
+        .and_then(|stats| {
+            file.commit()?;
+            Ok(stats)
+        });
     let stats = match result {
         Ok(s) => s,
         Err(e) => {

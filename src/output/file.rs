@@ -32,10 +32,9 @@ pub struct OutputFile(Arc<Mutex<Target>>);
 struct Target {
     file: File,
     /// The first bytes written, up to [`HEAD`], while they are held back; `None` for a
-    /// file that is written straight through.
+    /// file that is written straight through. Everything after them is written at
+    /// `HEAD` on, so the file's position says how long it is once they are whole.
     head: Option<Vec<u8>>,
-    /// Bytes written after the head.
-    tail: u64,
 }
 
 impl OutputFile {
@@ -56,11 +55,7 @@ impl OutputFile {
         } else {
             None
         };
-        Ok(OutputFile(Arc::new(Mutex::new(Target {
-            file,
-            head,
-            tail: 0,
-        }))))
+        Ok(OutputFile(Arc::new(Mutex::new(Target { file, head }))))
     }
 
     fn target(&self) -> io::Result<MutexGuard<'_, Target>> {
@@ -73,9 +68,14 @@ impl OutputFile {
     /// first page.
     pub fn commit(&self) -> io::Result<()> {
         let mut t = self.target()?;
-        let Target { file, head, tail } = &mut *t;
+        let Target { file, head } = &mut *t;
         if let Some(head) = head.take() {
-            file.set_len(head.len() as u64 + *tail)?;
+            let len = if head.len() < HEAD {
+                head.len() as u64
+            } else {
+                file.stream_position()?
+            };
+            file.set_len(len)?;
             file.seek(SeekFrom::Start(0))?;
             file.write_all(&head)?;
         }
@@ -86,19 +86,14 @@ impl OutputFile {
 impl Write for OutputFile {
     fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
         let mut t = self.target()?;
-        let Target { file, head, tail } = &mut *t;
+        let Target { file, head } = &mut *t;
         match head {
             Some(head) if head.len() < HEAD => {
                 let n = (HEAD - head.len()).min(buf.len());
                 head.extend_from_slice(&buf[..n]);
                 Ok(n)
             }
-            Some(_) => {
-                let n = file.write(buf)?;
-                *tail += n as u64;
-                Ok(n)
-            }
-            None => file.write(buf),
+            _ => file.write(buf),
         }
     }
 
