@@ -3,13 +3,13 @@
 use glam::{DAffine3, DVec3};
 
 use super::ray::Ray;
-use wide::{f32x4, f64x2};
+use wide::{f32x4, f32x8, f64x2};
 
-// The one module with `unsafe`: calling code compiled for AVX2, once the processor
-// is known to have it.
+// The one module with `unsafe`: calling code compiled for AVX2 or AVX-512, once the
+// processor is known to have it.
 #[cfg(target_arch = "x86_64")]
 #[allow(unsafe_code)]
-pub mod avx2;
+pub mod x86;
 
 /// An axis-aligned box; empty when `min > max` on any axis.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -267,7 +267,7 @@ impl BoxPair32 {
 
 /// Four rays tested against both children of an inner node: what a packet's traversal
 /// asks of its rays, in four lanes ([`SlabRay4`]) or, where the processor has them,
-/// eight ([`avx2::SlabRay8`]). Every implementation gives exactly what two calls of
+/// eight ([`x86::SlabRay8`]). Every implementation gives exactly what two calls of
 /// [`SlabRay4::enter`] give, bit for bit, so the traversal is the same whichever runs.
 pub trait PairTest {
     /// [`SlabRay4::enter`] for each child of `b`, each ray within `[t_min, t_max]`
@@ -281,6 +281,44 @@ impl PairTest for SlabRay4 {
         let (t_min, limit) = (f32x4::splat(t_min), lanes(t_max));
         [0, 1].map(|c| self.enter(&b.child(c), t_min, limit))
     }
+}
+
+/// Eight rays tested against both children of an inner node: what a packet of eight
+/// asks of its rays, as two packets of four (`[P; 2]`, ray `r` in half `r / 4`) or,
+/// where the processor has AVX-512, in sixteen lanes ([`x86::SlabRay16`]). Every
+/// implementation gives exactly what [`SlabRay4::enter`] gives each half, bit for
+/// bit: bit `r` of child `c`'s mask where ray `r` enters it, and its entry `λ` in lane
+/// `r`.
+pub trait PairTest8 {
+    /// [`PairTest::enter_pair`] for the eight rays.
+    fn enter_pair8(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 8]) -> [(u32, f32x8); 2];
+}
+
+impl<P: PairTest> PairTest8 for [P; 2] {
+    #[inline(always)]
+    fn enter_pair8(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 8]) -> [(u32, f32x8); 2] {
+        let (lo, hi) = halves(t_max);
+        let (lo, hi) = (
+            self[0].enter_pair(b, t_min, lo),
+            self[1].enter_pair(b, t_min, hi),
+        );
+        [0, 1].map(|c| (lo[c].0 | hi[c].0 << 4, bytemuck::cast([lo[c].1, hi[c].1])))
+    }
+}
+
+/// The first four and the last four of eight.
+#[inline(always)]
+pub fn halves<T>(x: &[T; 8]) -> (&[T; 4], &[T; 4]) {
+    let (lo, hi) = x.split_first_chunk::<4>().expect("eight is four and four");
+    (lo, hi.first_chunk::<4>().expect("eight is four and four"))
+}
+
+/// The lanes of eight rays whose entry `λ` (as [`PairTest8::enter_pair8`] gives it) is
+/// at most their `t_max`, rounding forgiven: [`SlabRay4::within`] for each half.
+#[inline(always)]
+pub fn within8(near: f32x8, t_max: &[f64; 8]) -> u32 {
+    near.simd_le(f32x8::new(t_max.map(|x| x as f32)) * f32x8::splat(GROW))
+        .to_bitmask()
 }
 
 /// The largest `f32` at most `x`, for `x` within `f32`'s finite range.
@@ -470,8 +508,11 @@ pub fn lanes_of(mut bits: u32) -> impl Iterator<Item = usize> {
 /// `each(lane)` for the lanes of `bits`, `T::default()` in the others: a packet's
 /// rays taken one at a time.
 #[inline(always)]
-pub fn per_lane<T: Copy + Default>(bits: u32, mut each: impl FnMut(usize) -> T) -> [T; 4] {
-    let mut out = [T::default(); 4];
+pub fn per_lane<T: Copy + Default, const N: usize>(
+    bits: u32,
+    mut each: impl FnMut(usize) -> T,
+) -> [T; N] {
+    let mut out = [T::default(); N];
     for lane in lanes_of(bits) {
         out[lane] = each(lane);
     }

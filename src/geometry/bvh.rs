@@ -15,10 +15,12 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 #[cfg(target_arch = "x86_64")]
-use super::bounds::avx2::Avx2;
-use super::bounds::{Aabb, Box32, BoxPair32, PairTest, SlabRay, SlabRay4, box32, lanes};
+use super::bounds::x86::{Avx2, Avx512};
+use super::bounds::{
+    Aabb, Box32, BoxPair32, PairTest8, SlabRay, SlabRay4, box32, halves, lanes, within8,
+};
 use super::ray::Ray;
-use wide::f32x4;
+use wide::{f32x4, f32x8};
 
 /// Primitives per leaf at most, when the SAH would rather not split.
 const MAX_LEAF_PRIMS: usize = 4;
@@ -108,7 +110,7 @@ pub struct Bvh {
     nodes: Vec<Node>,
     /// The tree as traversed.
     inner: Vec<Inner>,
-    /// Each of `inner` as packets of rays traverse it ([`Bvh::closest4`]).
+    /// Each of `inner` as packets of rays traverse it ([`Bvh::closest8`]).
     packet: Vec<PacketNode>,
     /// The root's box in single precision.
     root32: Box32,
@@ -407,46 +409,56 @@ impl Bvh {
         }
     }
 
-    /// [`Bvh::closest`] for four rays at once (a packet), the lanes of `active`: the
-    /// tree is traversed once, each node's boxes tested for all four rays, while a
-    /// subtree that some active ray enters remains. `leaf(prim, rays, t_max)` tests one
-    /// primitive for the rays of the bit set `rays` (those that entered its leaf) and
-    /// lowers their `t_max`. A ray is given every primitive [`Bvh::closest`] would
-    /// give it, and maybe others, so a leaf function whose result does not depend on
-    /// the order it sees primitives in (the closest hit, ties to the lowest index)
-    /// finds for each ray what it finds alone. `t_min` is not negative.
+    /// [`Bvh::closest`] for eight rays at once (a packet, given as two of four), the
+    /// lanes of `active`: the tree is traversed once, each node's boxes tested for all
+    /// eight rays, while a subtree that some active ray enters remains.
+    /// `leaf(prim, rays, t_max)` tests one primitive for the rays of the bit set `rays`
+    /// (those that entered its leaf) and lowers their `t_max`. A ray is given every
+    /// primitive [`Bvh::closest`] would give it, and maybe others, so a leaf function
+    /// whose result does not depend on the order it sees primitives in (the closest
+    /// hit, ties to the lowest index) finds for each ray what it finds alone. `t_min`
+    /// is not negative.
     ///
-    /// Where the processor has AVX2, each node's two boxes are tested in one pass of
-    /// eight lanes ([`SlabRay8`](super::bounds::avx2::SlabRay8)), by the same
-    /// operations, so the traversal and its results are the same.
+    /// Each node's two boxes are tested for the eight rays in one pass of sixteen lanes
+    /// where the processor has AVX-512 ([`SlabRay16`](super::bounds::x86::SlabRay16)),
+    /// in two passes of eight where it has AVX2, else in four of four: the same
+    /// operations each way, so the traversal and its results are the same.
     #[inline]
-    pub fn closest4<F: FnMut(u32, u32, &mut [f64; 4])>(
+    pub fn closest8<F: FnMut(u32, u32, &mut [f64; 8])>(
         &self,
-        rays: &SlabRay4,
+        rays: &[SlabRay4; 2],
         t_min: f64,
-        t_max: &mut [f64; 4],
+        t_max: &mut [f64; 8],
         active: u32,
         leaf: F,
     ) {
         #[cfg(target_arch = "x86_64")]
-        if let Some(avx2) = Avx2::detect() {
-            return avx2.run(|| {
-                let eight = avx2.widen(rays);
-                self.traverse4(rays, &eight, t_min, t_max, active, leaf)
-            });
+        {
+            if let Some(avx512) = Avx512::detect() {
+                return avx512.run(|| {
+                    let sixteen = avx512.widen(rays);
+                    self.traverse8(rays, &sixteen, t_min, t_max, active, leaf)
+                });
+            }
+            if let Some(avx2) = Avx2::detect() {
+                return avx2.run(|| {
+                    let eight = [avx2.widen(&rays[0]), avx2.widen(&rays[1])];
+                    self.traverse8(rays, &eight, t_min, t_max, active, leaf)
+                });
+            }
         }
-        self.traverse4(rays, rays, t_min, t_max, active, leaf)
+        self.traverse8(rays, rays, t_min, t_max, active, leaf)
     }
 
-    /// [`Bvh::closest4`], testing each node's boxes with `pairs` (`rays` themselves,
-    /// or the same rays in wider lanes).
+    /// [`Bvh::closest8`], testing each node's boxes with `pairs` (`rays` themselves, or
+    /// the same rays in wider lanes).
     #[inline(always)]
-    fn traverse4<P: PairTest, F: FnMut(u32, u32, &mut [f64; 4])>(
+    fn traverse8<P: PairTest8, F: FnMut(u32, u32, &mut [f64; 8])>(
         &self,
-        rays: &SlabRay4,
+        rays: &[SlabRay4; 2],
         pairs: &P,
         t_min: f64,
-        t_max: &mut [f64; 4],
+        t_max: &mut [f64; 8],
         active: u32,
         mut leaf: F,
     ) {
@@ -454,13 +466,18 @@ impl Bvh {
             return;
         }
         let t_min = t_min as f32;
-        let (entered, _) = rays.enter(&self.root32, f32x4::splat(t_min), lanes(t_max));
+        let entered = {
+            let (lo, hi) = halves(t_max);
+            let enter =
+                |r: &SlabRay4, t: &[f64; 4]| r.enter(&self.root32, f32x4::splat(t_min), lanes(t)).0;
+            enter(&rays[0], lo) | enter(&rays[1], hi) << 4
+        };
         let mut mask = active & entered;
         if mask == 0 {
             return;
         }
         // (subtree, its rays, their entry λ).
-        let mut stack: ArrayVec<(u32, u32, f32x4), STACK_SIZE> = ArrayVec::new();
+        let mut stack: ArrayVec<(u32, u32, f32x8), STACK_SIZE> = ArrayVec::new();
         let mut cur = self.root;
         loop {
             if cur & LEAF != 0 {
@@ -470,7 +487,7 @@ impl Bvh {
                 }
             } else {
                 let n = &self.packet[cur as usize];
-                let [(m0, near0), (m1, near1)] = pairs.enter_pair(&n.boxes, t_min, t_max);
+                let [(m0, near0), (m1, near1)] = pairs.enter_pair8(&n.boxes, t_min, t_max);
                 let (m0, m1) = (m0 & mask, m1 & mask);
                 if m0 != 0 && m1 != 0 {
                     // The nearer child first, as the first ray that enters both sees it.
@@ -499,13 +516,11 @@ impl Bvh {
                     continue;
                 }
             }
-            // Pop the next subtree that some ray may still find something nearer (or
-            // tied) in.
             loop {
                 let Some((node, m, near)) = stack.pop() else {
                     return;
                 };
-                let m = m & SlabRay4::within(near, t_max);
+                let m = m & within8(near, t_max);
                 if m != 0 {
                     cur = node;
                     mask = m;
@@ -1109,15 +1124,35 @@ mod tests {
         prop_oneof![2 => diagonal, 1 => any]
     }
 
-    /// Four rays: from one grid point (as primary rays share the camera) or from four.
-    fn packet() -> impl Strategy<Value = [(DVec3, DVec3); 4]> {
+    /// [`Bvh::closest8`] in two passes of eight lanes where the processor has AVX2 (the
+    /// portable four lanes elsewhere).
+    fn in_eight_lanes(
+        bvh: &Bvh,
+        slab: &[SlabRay4; 2],
+        limits: &mut [f64; 8],
+        active: u32,
+        leaf: impl FnMut(u32, u32, &mut [f64; 8]),
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(avx2) = Avx2::detect() {
+            return avx2.run(|| {
+                let eight = slab.map(|s| avx2.widen(&s));
+                bvh.traverse8(slab, &eight, 1e-9, limits, active, leaf)
+            });
+        }
+        bvh.traverse8(slab, slab, 1e-9, limits, active, leaf)
+    }
+
+    /// Eight rays: from one grid point (as primary rays share the camera) or from
+    /// eight.
+    fn packet() -> impl Strategy<Value = [(DVec3, DVec3); 8]> {
         let point = prop::array::uniform3(-12i32..12)
             .prop_map(|c| DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * 0.5);
-        let dirs = || prop::array::uniform4(packet_dir());
+        let dirs = || prop::array::uniform8(packet_dir());
         prop_oneof![
             (point.clone(), dirs()).prop_map(|(o, d)| d.map(|d| (o, d))),
-            (prop::array::uniform4(point), dirs())
-                .prop_map(|(o, d)| [0, 1, 2, 3].map(|k| (o[k], d[k]))),
+            (prop::array::uniform8(point), dirs())
+                .prop_map(|(o, d)| std::array::from_fn(|k| (o[k], d[k]))),
         ]
     }
 
@@ -1199,19 +1234,22 @@ mod tests {
         fn packets_find_what_every_box_finds(
             boxes in prop::collection::vec(grid_box(), 1..80),
             packets in prop::collection::vec(packet(), 1..12),
-            active in 1u32..16,
+            active in 1u32..256,
             test_cost in prop_oneof![Just(1.0), Just(2.0), Just(4.0)],
         ) {
             let bvh = Bvh::build(&boxes, test_cost);
             for rays in packets {
-                let slab = SlabRay4::new(&rays.map(|(o, d)| Ray::new(o, d)))
-                    .expect("no zero direction component");
-                // The traversal as dispatched (eight lanes where the processor has
-                // AVX2) and the portable one of four lanes.
-                let mut found = [[None; 4]; 2];
-                for (portable, best) in found.iter_mut().enumerate() {
-                    let mut limits = [f64::INFINITY; 4];
-                    let leaf = |i: u32, lanes: u32, limits: &mut [f64; 4]| {
+                let rays8 = rays.map(|(o, d)| Ray::new(o, d));
+                let (lo, hi) = halves(&rays8);
+                let slab = [lo, hi]
+                    .map(|r| SlabRay4::new(r).expect("no zero direction component"));
+                // The traversal as dispatched (sixteen lanes where the processor has
+                // AVX-512, else eight where it has AVX2), the one of eight lanes, and
+                // the portable one of four.
+                let mut found = [[None; 8]; 3];
+                for (path, best) in found.iter_mut().enumerate() {
+                    let mut limits = [f64::INFINITY; 8];
+                    let leaf = |i: u32, lanes: u32, limits: &mut [f64; 8]| {
                         for lane in lanes_of(lanes) {
                             let (o, d) = rays[lane];
                             // The rule of `closest_of`, ray by ray.
@@ -1226,10 +1264,10 @@ mod tests {
                             }
                         }
                     };
-                    if portable == 1 {
-                        bvh.traverse4(&slab, &slab, 1e-9, &mut limits, active, leaf);
-                    } else {
-                        bvh.closest4(&slab, 1e-9, &mut limits, active, leaf);
+                    match path {
+                        0 => bvh.closest8(&slab, 1e-9, &mut limits, active, leaf),
+                        1 => in_eight_lanes(&bvh, &slab, &mut limits, active, leaf),
+                        _ => bvh.traverse8(&slab, &slab, 1e-9, &mut limits, active, leaf),
                     }
                 }
                 for (lane, &(o, d)) in rays.iter().enumerate() {
@@ -1240,10 +1278,10 @@ mod tests {
                         }
                     });
                     let expected = if active >> lane & 1 == 1 { slow } else { None };
-                    for (portable, best) in found.iter().enumerate() {
+                    for (path, best) in found.iter().enumerate() {
                         prop_assert_eq!(
                             best[lane], expected,
-                            "portable {} lane {} ray {:?} + λ {:?}", portable, lane, o, d
+                            "path {} lane {} ray {:?} + λ {:?}", path, lane, o, d
                         );
                     }
                 }

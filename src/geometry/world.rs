@@ -10,7 +10,7 @@ use glam::{DAffine3, DMat3, DVec3};
 use rayon::prelude::*;
 
 use super::{
-    bounds::{Aabb, SlabRay, SlabRay4, lanes_of},
+    bounds::{Aabb, SlabRay, SlabRay4, halves, lanes_of},
     bvh::Bvh,
     hit::{Hit, Probe, Surface},
     ray::Ray,
@@ -231,69 +231,70 @@ impl World {
         best
     }
 
-    /// [`World::closest`] for four rays at once, traversing the BVH with them as a
+    /// [`World::closest`] for eight rays at once, traversing the BVH with them as a
     /// packet (neighbouring primary rays take much the same path): each ray's hit is
     /// the one it finds alone, bit for bit. Rays whose numbers the packet's
     /// single-precision test does not take are traced one at a time.
-    pub fn closest4(&self, rays: &[Ray; 4], t_min: f64, t_max: f64) -> [Option<Hit>; 4] {
+    pub fn closest8(&self, rays: &[Ray; 8], t_min: f64, t_max: f64) -> [Option<Hit>; 8] {
         let lone = self.lone();
         let slab = match lone {
             Some(_) => None,
-            None => match SlabRay4::new(rays) {
-                Some(slab) => Some(slab),
-                None => return rays.map(|r| self.closest(&r, t_min, t_max)),
-            },
+            None => {
+                let (lo, hi) = halves(rays);
+                match (SlabRay4::new(lo), SlabRay4::new(hi)) {
+                    (Some(lo), Some(hi)) => Some([lo, hi]),
+                    _ => return rays.map(|r| self.closest(&r, t_min, t_max)),
+                }
+            }
         };
-        let mut from_view = [false; 4];
+        let mut from_view = [false; 8];
         for (f, r) in from_view.iter_mut().zip(rays) {
             *f = self.viewpoint == Some(r.origin);
         }
-        let mut best: [Option<Hit>; 4] = [None; 4];
-        let mut limit = [t_max; 4];
+        let mut best: [Option<Hit>; 8] = [None; 8];
+        let mut limit = [t_max; 8];
         for &i in &self.unbounded {
-            self.consider4(i, rays, from_view, t_min, 0b1111, &mut limit, &mut best);
+            self.consider8(i, rays, from_view, t_min, 0xff, &mut limit, &mut best);
         }
         if let Some(i) = lone {
-            self.consider4(i, rays, from_view, t_min, 0b1111, &mut limit, &mut best);
+            self.consider8(i, rays, from_view, t_min, 0xff, &mut limit, &mut best);
         }
         if let Some(slab) = slab {
-            self.bvh.closest4(
+            self.bvh.closest8(
                 &slab,
                 t_min,
                 &mut limit,
-                0b1111,
-                // Inlined into each traversal that calls it (the BVH has one per lane
-                // width).
+                0xff,
                 #[inline(always)]
                 |i, active, limit| {
-                    self.consider4(i, rays, from_view, t_min, active, limit, &mut best)
+                    self.consider8(i, rays, from_view, t_min, active, limit, &mut best)
                 },
             );
         }
         best
     }
 
-    /// Object `i` for the rays of `active` (of [`World::closest4`]), each taken by the
+    /// Object `i` for the rays of `active` (of [`World::closest8`]), each taken by the
     /// rule of `closest_probed`, so the same hits. `next_up` lets an equal λ through.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn consider4(
+    fn consider8(
         &self,
         i: u32,
-        rays: &[Ray; 4],
-        from_view: [bool; 4],
+        rays: &[Ray; 8],
+        from_view: [bool; 8],
         t_min: f64,
         active: u32,
-        limit: &mut [f64; 4],
-        best: &mut [Option<Hit>; 4],
+        limit: &mut [f64; 8],
+        best: &mut [Option<Hit>; 8],
     ) {
         let s = &self.solids[i as usize];
-        let (mut object, mut below) = (*rays, [0.0; 4]);
+        let (mut object, mut below) = (*rays, [0.0; 8]);
         for lane in lanes_of(active) {
             object[lane] = s.object_ray(&rays[lane], from_view[lane]);
             below[lane] = limit[lane].next_up();
         }
-        let found = s.shape.intersect4(&object, active, t_min, below);
+        let found = s.shape.intersect8(&object, active, t_min, below);
         for lane in lanes_of(active) {
             limit[lane] = keep_first(&mut best[lane], i, found[lane], limit[lane]);
         }

@@ -111,36 +111,36 @@ impl Renderer {
 }
 
 impl Renderer {
-    /// The primary rays of pixels `(u, v)` to `(u + 3, v)`.
+    /// The primary rays of pixels `(u, v)` to `(u + 7, v)`.
     #[inline]
-    fn pixel_rays4(&self, u: u32, v: u32) -> [Ray; 4] {
-        let mut rays = [Ray::new(DVec3::ZERO, DVec3::ZERO); 4];
+    fn pixel_rays8(&self, u: u32, v: u32) -> [Ray; 8] {
+        let mut rays = [Ray::new(DVec3::ZERO, DVec3::ZERO); 8];
         for (k, r) in rays.iter_mut().enumerate() {
             *r = self.camera.pixel_ray::<Lecture>(u + k as u32, v);
         }
         rays
     }
 
-    /// [`Renderer::pixel_hit`] of pixels `(u, v)` to `(u + 3, v)`, their rays traced
-    /// as a packet: the same four hits, bit for bit.
+    /// [`Renderer::pixel_hit`] of pixels `(u, v)` to `(u + 7, v)`, their rays traced
+    /// as a packet: the same eight hits, bit for bit.
     #[inline]
-    pub fn pixel_hits4(&self, u: u32, v: u32) -> [Option<Surface>; 4] {
-        let rays = self.pixel_rays4(u, v);
+    pub fn pixel_hits8(&self, u: u32, v: u32) -> [Option<Surface>; 8] {
+        let rays = self.pixel_rays8(u, v);
         let hits = self
             .world
-            .closest4(&rays, PRIMARY_LAMBDA_MIN, f64::INFINITY);
-        let mut out = [None; 4];
-        for k in 0..4 {
+            .closest8(&rays, PRIMARY_LAMBDA_MIN, f64::INFINITY);
+        let mut out = [None; 8];
+        for k in 0..8 {
             out[k] = hits[k].map(|h| self.hit_record::<Lecture>(&rays[k], &h));
         }
         out
     }
 
-    /// [`Renderer::pixel_colour`] of pixels `(u, v)` to `(u + 3, v)` of a scene of one
-    /// sample a pixel, their primary rays traced as a packet: the same four colours,
+    /// [`Renderer::pixel_colour`] of pixels `(u, v)` to `(u + 7, v)` of a scene of one
+    /// sample a pixel, their primary rays traced as a packet: the same eight colours,
     /// bit for bit. `None` for a scene of several samples a pixel.
     #[inline]
-    pub fn pixel_colours4(&self, u: u32, v: u32, rays: &mut RayCount) -> Option<[DVec3; 4]> {
+    pub fn pixel_colours8(&self, u: u32, v: u32, rays: &mut RayCount) -> Option<[DVec3; 8]> {
         if self.scene.samples != 1 {
             return None;
         }
@@ -148,36 +148,36 @@ impl Renderer {
             scene: &self.scene,
             world: &self.world,
         };
-        let primary = self.pixel_rays4(u, v);
+        let primary = self.pixel_rays8(u, v);
         let hits = self
             .world
-            .closest4(&primary, PRIMARY_LAMBDA_MIN, f64::INFINITY);
-        let mut out = [DVec3::ZERO; 4];
-        for k in 0..4 {
+            .closest8(&primary, PRIMARY_LAMBDA_MIN, f64::INFINITY);
+        let mut out = [DVec3::ZERO; 8];
+        for k in 0..8 {
             out[k] = shader.shade_as::<(), Lecture>(&primary[k], 0, hits[k], rays, &mut ());
         }
         Some(out)
     }
 }
 
-/// Pixels `(u, v)` to `(u + width − 1, v)` into `out`: four at a time from `four`
+/// Pixels `(u, v)` to `(u + width − 1, v)` into `out`: eight at a time from `eight`
 /// (which counts its rays into `rays`) while it gives them, the rest from the kernel's
 /// own [`Kernel::pixel`].
 #[inline]
-fn row_in_fours<K: Kernel>(
+fn row_in_eights<K: Kernel>(
     kernel: &K,
     (u, v, width): (u32, u32, u32),
     rays: &mut u64,
     out: &mut Vec<K::Pixel>,
-    four: impl Fn(u32, &mut u64) -> Option<[K::Pixel; 4]>,
+    eight: impl Fn(u32, &mut u64) -> Option<[K::Pixel; 8]>,
 ) {
     let mut x = u;
-    while x + 4 <= u + width {
-        match four(x, rays) {
+    while x + 8 <= u + width {
+        match eight(x, rays) {
             Some(p) => out.extend(p),
             None => break,
         }
-        x += 4;
+        x += 8;
     }
     for x in x..u + width {
         out.push(kernel.pixel(x, v, rays));
@@ -200,9 +200,9 @@ impl Kernel for ColourKernel<'_> {
     #[inline]
     fn row(&self, u: u32, v: u32, width: u32, rays: &mut u64, out: &mut Vec<[u8; 3]>) {
         let gamma = self.0.scene.gamma;
-        row_in_fours(self, (u, v, width), rays, out, |x, rays| {
+        row_in_eights(self, (u, v, width), rays, out, |x, rays| {
             let mut n = RayCount(0);
-            let c = self.0.pixel_colours4(x, v, &mut n)?;
+            let c = self.0.pixel_colours8(x, v, &mut n)?;
             *rays += n.0;
             Some(c.map(|c| quantise(c, gamma)))
         });
@@ -226,9 +226,9 @@ impl Kernel for LinearKernel<'_> {
 
     #[inline]
     fn row(&self, u: u32, v: u32, width: u32, rays: &mut u64, out: &mut Vec<[f32; 3]>) {
-        row_in_fours(self, (u, v, width), rays, out, |x, rays| {
+        row_in_eights(self, (u, v, width), rays, out, |x, rays| {
             let mut n = RayCount(0);
-            let c = self.0.pixel_colours4(x, v, &mut n)?;
+            let c = self.0.pixel_colours8(x, v, &mut n)?;
             *rays += n.0;
             Some(c.map(|c| c.as_vec3().to_array()))
         });
@@ -248,9 +248,9 @@ impl Kernel for HitKernel<'_> {
 
     #[inline]
     fn row(&self, u: u32, v: u32, width: u32, rays: &mut u64, out: &mut Vec<Option<Surface>>) {
-        row_in_fours(self, (u, v, width), rays, out, |x, rays| {
-            *rays += 4;
-            Some(self.0.pixel_hits4(x, v))
+        row_in_eights(self, (u, v, width), rays, out, |x, rays| {
+            *rays += 8;
+            Some(self.0.pixel_hits8(x, v))
         });
     }
 }

@@ -147,7 +147,7 @@ fn height_field(n: u32) -> Value {
 }
 
 #[test]
-fn packets_of_four_rays_find_what_each_ray_finds_alone() {
+fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
     for seed in 31..=35 {
         // The last is the height field alone: a world of one object, which packets and
         // shadow rays go to without the world's tree.
@@ -160,18 +160,18 @@ fn packets_of_four_rays_find_what_each_ray_finds_alone() {
         let (w, h) = (r.scene.width, r.scene.height);
         let mut hits = 0;
         for v in 0..h {
-            for u in (0..w - 3).step_by(4) {
-                let alone: Vec<_> = (u..u + 4).map(|x| r.pixel_hit(x, v)).collect();
+            for u in (0..w - 7).step_by(8) {
+                let alone: Vec<_> = (u..u + 8).map(|x| r.pixel_hit(x, v)).collect();
                 assert_eq!(
-                    r.pixel_hits4(u, v).to_vec(),
+                    r.pixel_hits8(u, v).to_vec(),
                     alone,
                     "seed {seed} ({u}, {v})"
                 );
                 hits += alone.iter().flatten().count();
                 let mut n = raytile::render::RayCount(0);
-                let colours = r.pixel_colours4(u, v, &mut n).expect("one sample a pixel");
+                let colours = r.pixel_colours8(u, v, &mut n).expect("one sample a pixel");
                 let mut m = raytile::render::RayCount(0);
-                let one: Vec<_> = (u..u + 4).map(|x| r.pixel_colour(x, v, &mut m)).collect();
+                let one: Vec<_> = (u..u + 8).map(|x| r.pixel_colour(x, v, &mut m)).collect();
                 assert_eq!(colours.to_vec(), one, "seed {seed} ({u}, {v})");
                 assert_eq!(n.0, m.0, "the same rays are counted");
             }
@@ -180,19 +180,19 @@ fn packets_of_four_rays_find_what_each_ray_finds_alone() {
             hits > (w * h / 10) as usize,
             "seed {seed}: only {hits} hits"
         );
-        // Four unrelated rays at a time: a packet that parts at once.
+        // Eight unrelated rays at a time: a packet that parts at once.
         let mut rng = Rng(seed * 104_729);
         for _ in 0..500 {
-            let rays = [0; 4].map(|_| {
+            let rays = [0; 8].map(|_| {
                 Ray::new(
                     DVec3::from(rng.v3(-8.0, 8.0)) + DVec3::new(0.0, 0.0, 10.0),
                     DVec3::from(rng.v3(-1.0, 1.0)),
                 )
             });
-            let four = r.world.closest4(&rays, 1e-9, f64::INFINITY);
+            let eight = r.world.closest8(&rays, 1e-9, f64::INFINITY);
             for (k, ray) in rays.iter().enumerate() {
                 assert_eq!(
-                    four[k],
+                    eight[k],
                     r.world.closest_brute_force(ray, 1e-9, f64::INFINITY)
                 );
                 assert_eq!(
@@ -200,14 +200,14 @@ fn packets_of_four_rays_find_what_each_ray_finds_alone() {
                     r.world.closest_brute_force(ray, 1e-9, 2.0).is_some()
                 );
             }
-            // A ray along an axis plane is too much for the packet's f32 test: the four
+            // A ray along an axis plane is too much for the packet's f32 test: the eight
             // are traced one at a time, with the same answers.
             let mut flat = rays;
-            flat[2].dir.y = 0.0;
-            let four = r.world.closest4(&flat, 1e-9, f64::INFINITY);
+            flat[2 + 4 * (rng.0 as usize % 2)].dir.y = 0.0;
+            let eight = r.world.closest8(&flat, 1e-9, f64::INFINITY);
             for (k, ray) in flat.iter().enumerate() {
                 assert_eq!(
-                    four[k],
+                    eight[k],
                     r.world.closest_brute_force(ray, 1e-9, f64::INFINITY)
                 );
             }
@@ -270,8 +270,9 @@ fn moving_camera_and_objects_together_changes_nothing() {
 #[test]
 fn output_is_identical_whatever_the_tiles_and_threads() {
     let dir = tempfile::tempdir().unwrap();
-    // One sample a pixel traces primary rays in packets of four, two samples one by
-    // one; a tile 7 wide ends each row with three pixels traced alone.
+    // One sample a pixel traces primary rays in packets of eight, two samples one by
+    // one; a tile 7 wide traces each row one pixel at a time, one 13 wide ends each row
+    // with five pixels traced alone.
     for samples in [1, 2] {
         let mut doc = random_scene(21, 40, 120);
         doc["image"]["samples"] = json!(samples);
@@ -286,7 +287,7 @@ fn output_is_identical_whatever_the_tiles_and_threads() {
 fn same_output_for_every_tiling(dir: &tempfile::TempDir, scene: &std::path::Path, samples: u32) {
     let mut first: Option<(Vec<u8>, Vec<u8>, Vec<u8>)> = None;
     for threads in ["1", "2"] {
-        for tile in ["8", "7", "32", "64"] {
+        for tile in ["8", "7", "13", "32", "64"] {
             let outs: Vec<Vec<u8>> = ["png", "json", "npy"]
                 .iter()
                 .map(|ext| {

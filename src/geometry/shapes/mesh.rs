@@ -13,7 +13,7 @@ use glam::DVec3;
 
 use super::CanonicalShape;
 use crate::geometry::{
-    bounds::{Aabb, SlabRay, SlabRay4, lanes_of, per_lane},
+    bounds::{Aabb, SlabRay, SlabRay4, halves, lanes_of, per_lane},
     bvh::Bvh,
     hit::{Probe, TriangleTest},
     ray::Ray,
@@ -116,42 +116,43 @@ impl CanonicalShape for Mesh {
 
     /// The rays of `active` traverse the triangles' BVH together (a lone ray goes on
     /// its own), each tested and ranked as [`MeshAccel::intersect`] does.
-    fn intersect4(
+    fn intersect8(
         &self,
-        rays: &[Ray; 4],
+        rays: &[Ray; 8],
         active: u32,
         t_min: f64,
-        t_max: [f64; 4],
-    ) -> [Option<(f64, u32)>; 4] {
+        t_max: [f64; 8],
+    ) -> [Option<(f64, u32)>; 8] {
         let a = self.accel();
         // A packet pays for more than one ray only.
         let slab = (active.count_ones() > 1)
-            .then(|| SlabRay4::new(rays))
+            .then(|| {
+                let (lo, hi) = halves(rays);
+                Some([SlabRay4::new(lo)?, SlabRay4::new(hi)?])
+            })
             .flatten();
         let Some(slab) = slab else {
             return per_lane(active, |lane| {
                 a.intersect(&rays[lane], t_min, t_max[lane], &mut ())
             });
         };
-        let mut best: [Option<(f64, u32)>; 4] = [None; 4];
+        let mut best: [Option<(f64, u32)>; 8] = [None; 8];
         let mut limits = t_max;
-        a.bvh
-            // Inlined into each traversal that calls it (the BVH has one per lane width).
-            .closest4(
-                &slab,
-                t_min,
-                &mut limits,
-                active,
-                #[inline(always)]
-                |k, rays_in, limits| {
-                    let (tri, id) = (&a.tris[k as usize], a.ids[k as usize]);
-                    for lane in lanes_of(rays_in) {
-                        let limit = limits[lane];
-                        let hit = moller_trumbore(tri, &rays[lane], t_min, limit, id, &mut ());
-                        limits[lane] = keep_first(&mut best[lane], hit, id, limit);
-                    }
-                },
-            );
+        a.bvh.closest8(
+            &slab,
+            t_min,
+            &mut limits,
+            active,
+            #[inline(always)]
+            |k, rays_in, limits| {
+                let (tri, id) = (&a.tris[k as usize], a.ids[k as usize]);
+                for lane in lanes_of(rays_in) {
+                    let limit = limits[lane];
+                    let hit = moller_trumbore(tri, &rays[lane], t_min, limit, id, &mut ());
+                    limits[lane] = keep_first(&mut best[lane], hit, id, limit);
+                }
+            },
+        );
         best
     }
 

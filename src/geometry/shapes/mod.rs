@@ -98,13 +98,13 @@ pub trait CanonicalShape {
     /// default one ray at a time; a shape with its own hierarchy (a mesh) traverses
     /// it once for all of them, with the same answers.
     #[inline]
-    fn intersect4(
+    fn intersect8(
         &self,
-        rays: &[Ray; 4],
+        rays: &[Ray; 8],
         active: u32,
         t_min: f64,
-        t_max: [f64; 4],
-    ) -> [Option<(f64, u32)>; 4] {
+        t_max: [f64; 8],
+    ) -> [Option<(f64, u32)>; 8] {
         per_lane(active, |lane| {
             self.intersect(&rays[lane], t_min, t_max[lane], &mut ())
         })
@@ -258,18 +258,18 @@ macro_rules! shapes {
                 }
             }
 
-            /// See [`CanonicalShape::intersect4`].
+            /// See [`CanonicalShape::intersect8`].
             #[inline(always)]
-            pub fn intersect4(
+            pub fn intersect8(
                 &self,
-                rays: &[Ray; 4],
+                rays: &[Ray; 8],
                 active: u32,
                 t_min: f64,
-                t_max: [f64; 4],
-            ) -> [Option<(f64, u32)>; 4] {
+                t_max: [f64; 8],
+            ) -> [Option<(f64, u32)>; 8] {
                 match self {
-                    $( Shape::$P => <$PT as CanonicalShape>::intersect4(&$PT, rays, active, t_min, t_max), )*
-                    $( Shape::$D(s) => <$DT as CanonicalShape>::intersect4(s, rays, active, t_min, t_max), )*
+                    $( Shape::$P => <$PT as CanonicalShape>::intersect8(&$PT, rays, active, t_min, t_max), )*
+                    $( Shape::$D(s) => <$DT as CanonicalShape>::intersect8(s, rays, active, t_min, t_max), )*
                 }
             }
 

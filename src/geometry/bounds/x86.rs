@@ -1,0 +1,367 @@
+//! A packet's box test in wider lanes: both children of a node for four rays in one
+//! pass of eight AVX2 lanes ([`SlabRay8`]), where [`SlabRay4`] takes two passes of
+//! four, and for eight rays in one pass of sixteen AVX-512 lanes ([`SlabRay16`]). Each
+//! is chosen at run time, on processors that have it, so that the release binary stays
+//! portable; the operations are [`SlabRay4::enter`]'s, lane for lane, so the results
+//! are the same bits.
+
+use std::arch::x86_64::*;
+
+use wide::f32x4;
+
+use super::{BoxPair32, GROW, PairTest, PairTest8, SHRINK, SlabRay4};
+use wide::f32x8;
+
+/// Proof that this processor has AVX2, and the way into code compiled for it.
+#[derive(Debug, Clone, Copy)]
+pub struct Avx2(());
+
+impl Avx2 {
+    /// `Some` where this processor has AVX2.
+    #[inline]
+    pub fn detect() -> Option<Avx2> {
+        is_x86_feature_detected!("avx2").then_some(Avx2(()))
+    }
+
+    /// Runs `f` inlined into a function compiled for AVX2, so that the box tests it
+    /// makes through a [`SlabRay8`] (and all else it inlines) are AVX2 code.
+    #[inline(always)]
+    pub fn run<R>(self, f: impl FnOnce() -> R) -> R {
+        // SAFETY: an `Avx2` exists only where the processor has AVX2 (`detect`).
+        unsafe { in_avx2(f) }
+    }
+
+    /// `rays` in eight lanes (inside [`Avx2::run`], where it compiles to a few
+    /// permutations).
+    #[inline(always)]
+    pub fn widen(self, rays: &SlabRay4) -> SlabRay8 {
+        // SAFETY: as in `run`.
+        unsafe { widen(rays) }
+    }
+}
+
+/// `f()`, compiled for AVX2 where it is inlined here.
+#[target_feature(enable = "avx2")]
+fn in_avx2<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}
+
+/// A [`SlabRay4`] in eight lanes, each ray twice: lane `2r + c` is ray `r` against
+/// child `c`, so that one 64-bit load of a [`BoxPair32`] coordinate, broadcast, lines
+/// up with it. Made only by [`Avx2::widen`], so only where the processor has AVX2.
+#[derive(Debug, Clone, Copy)]
+pub struct SlabRay8 {
+    o_down: [__m256; 3],
+    o_up: [__m256; 3],
+    inv: [__m256; 3],
+}
+
+impl SlabRay8 {
+    /// [`PairTest::enter_pair`], in AVX2.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn enter_pair_avx2(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 4]) -> [(u32, f32x4); 2] {
+        let mut near = _mm256_set1_ps(t_min);
+        let [t0, t1, t2, t3] = *t_max;
+        let mut far = twice(_mm256_cvtpd_ps(_mm256_setr_pd(t0, t1, t2, t3)));
+        for a in 0..3 {
+            let t0 = _mm256_mul_ps(_mm256_sub_ps(pair(&b.min[a]), self.o_up[a]), self.inv[a]);
+            let t1 = _mm256_mul_ps(_mm256_sub_ps(pair(&b.max[a]), self.o_down[a]), self.inv[a]);
+            near = _mm256_max_ps(near, _mm256_min_ps(t0, t1));
+            far = _mm256_min_ps(far, _mm256_max_ps(t0, t1));
+        }
+        let near = _mm256_mul_ps(near, _mm256_set1_ps(SHRINK));
+        let hit = _mm256_cmp_ps::<_CMP_LE_OS>(near, _mm256_mul_ps(far, _mm256_set1_ps(GROW)));
+        // The children apart: lanes 0–3 child 0's rays, 4–7 child 1's.
+        let apart = _mm256_setr_epi32(0, 2, 4, 6, 1, 3, 5, 7);
+        let bits = _mm256_movemask_ps(_mm256_permutevar8x32_ps(hit, apart)) as u32;
+        let near = _mm256_permutevar8x32_ps(near, apart);
+        [
+            (bits & 0b1111, bytemuck::cast(_mm256_castps256_ps128(near))),
+            (bits >> 4, bytemuck::cast(_mm256_extractf128_ps::<1>(near))),
+        ]
+    }
+}
+
+impl PairTest for SlabRay8 {
+    #[inline(always)]
+    fn enter_pair(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 4]) -> [(u32, f32x4); 2] {
+        // SAFETY: a `SlabRay8` exists only where the processor has AVX2 (`Avx2`).
+        unsafe { self.enter_pair_avx2(b, t_min, t_max) }
+    }
+}
+
+/// Proof that this processor has AVX-512 (its foundation), and the way into code
+/// compiled for it.
+#[derive(Debug, Clone, Copy)]
+pub struct Avx512(());
+
+impl Avx512 {
+    /// `Some` where this processor has AVX-512 F (and so AVX2).
+    #[inline]
+    pub fn detect() -> Option<Avx512> {
+        (is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("avx2"))
+            .then_some(Avx512(()))
+    }
+
+    /// Runs `f` inlined into a function compiled for AVX-512, so that the box tests
+    /// it makes through a [`SlabRay16`] are AVX-512 code.
+    #[inline(always)]
+    pub fn run<R>(self, f: impl FnOnce() -> R) -> R {
+        // SAFETY: an `Avx512` exists only where the processor has it (`detect`).
+        unsafe { in_avx512(f) }
+    }
+
+    /// Eight rays, as two packets of four, in sixteen lanes.
+    #[inline(always)]
+    pub fn widen(self, rays: &[SlabRay4; 2]) -> SlabRay16 {
+        // SAFETY: as in `run`.
+        unsafe { widen16(rays) }
+    }
+}
+
+/// `f()`, compiled for AVX-512 where it is inlined here.
+#[target_feature(enable = "avx512f,avx2")]
+fn in_avx512<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}
+
+/// Eight rays in sixteen lanes, each ray twice: lane `2r + c` is ray `r` against
+/// child `c`, so that one 64-bit load of a [`BoxPair32`] coordinate, broadcast, lines
+/// up with it (as in [`SlabRay8`]). Made only by [`Avx512::widen`].
+#[derive(Debug, Clone, Copy)]
+pub struct SlabRay16 {
+    o_down: [__m512; 3],
+    o_up: [__m512; 3],
+    inv: [__m512; 3],
+}
+
+/// Lane `2r + c` ← lane `r`: each of eight lanes twice.
+#[inline]
+#[target_feature(enable = "avx512f,avx2")]
+fn twice16(x: __m256) -> __m512 {
+    _mm512_permutexvar_ps(
+        _mm512_setr_epi32(0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5, 6, 6, 7, 7),
+        _mm512_castps256_ps512(x),
+    )
+}
+
+#[inline]
+#[target_feature(enable = "avx512f,avx2")]
+fn widen16(rays: &[SlabRay4; 2]) -> SlabRay16 {
+    let each = |f: fn(&SlabRay4) -> &[f32x4; 3]| {
+        [0, 1, 2].map(|a| {
+            let (lo, hi) = (f(&rays[0])[a], f(&rays[1])[a]);
+            twice16(_mm256_set_m128(bytemuck::cast(hi), bytemuck::cast(lo)))
+        })
+    };
+    SlabRay16 {
+        o_down: each(|r| &r.o_down),
+        o_up: each(|r| &r.o_up),
+        inv: each(|r| &r.inv),
+    }
+}
+
+impl SlabRay16 {
+    /// [`PairTest8::enter_pair8`], in AVX-512.
+    #[inline]
+    #[target_feature(enable = "avx512f,avx2")]
+    fn enter_pair16(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 8]) -> [(u32, f32x8); 2] {
+        let mut near = _mm512_set1_ps(t_min);
+        let [t0, t1, t2, t3, t4, t5, t6, t7] = *t_max;
+        let far = _mm512_setr_pd(t0, t1, t2, t3, t4, t5, t6, t7);
+        let mut far = twice16(_mm512_cvtpd_ps(far));
+        for a in 0..3 {
+            let t0 = _mm512_mul_ps(_mm512_sub_ps(pair16(&b.min[a]), self.o_up[a]), self.inv[a]);
+            let t1 = _mm512_mul_ps(
+                _mm512_sub_ps(pair16(&b.max[a]), self.o_down[a]),
+                self.inv[a],
+            );
+            near = _mm512_max_ps(near, _mm512_min_ps(t0, t1));
+            far = _mm512_min_ps(far, _mm512_max_ps(t0, t1));
+        }
+        // The children apart (lanes 0–7 child 0's rays, 8–15 child 1's), then compared.
+        let apart = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 1, 3, 5, 7, 9, 11, 13, 15);
+        let near = _mm512_permutexvar_ps(apart, _mm512_mul_ps(near, _mm512_set1_ps(SHRINK)));
+        let far = _mm512_permutexvar_ps(apart, _mm512_mul_ps(far, _mm512_set1_ps(GROW)));
+        let bits = u32::from(_mm512_cmp_ps_mask::<_CMP_LE_OS>(near, far));
+        let upper = _mm512_castpd_ps(_mm512_castpd256_pd512(_mm512_extractf64x4_pd::<1>(
+            _mm512_castps_pd(near),
+        )));
+        [
+            (bits & 0xff, bytemuck::cast(_mm512_castps512_ps256(near))),
+            (bits >> 8, bytemuck::cast(_mm512_castps512_ps256(upper))),
+        ]
+    }
+}
+
+impl PairTest8 for SlabRay16 {
+    #[inline(always)]
+    fn enter_pair8(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 8]) -> [(u32, f32x8); 2] {
+        // SAFETY: a `SlabRay16` exists only where the processor has AVX-512 (`Avx512`).
+        unsafe { self.enter_pair16(b, t_min, t_max) }
+    }
+}
+
+/// A coordinate of both children in sixteen lanes, `[b₀ b₁ b₀ b₁ …]`: one load.
+#[inline]
+#[target_feature(enable = "avx512f,avx2")]
+fn pair16(p: &[f32; 2]) -> __m512 {
+    _mm512_castpd_ps(_mm512_set1_pd(f64::from_bits(bytemuck::cast(*p))))
+}
+
+/// `rays`' lanes, each twice.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn widen(rays: &SlabRay4) -> SlabRay8 {
+    let each = |x: [f32x4; 3]| x.map(|v| twice(bytemuck::cast(v)));
+    SlabRay8 {
+        o_down: each(rays.o_down),
+        o_up: each(rays.o_up),
+        inv: each(rays.inv),
+    }
+}
+
+/// `[x₀ x₀ x₁ x₁ x₂ x₂ x₃ x₃]`.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn twice(x: __m128) -> __m256 {
+    _mm256_permutevar8x32_ps(
+        _mm256_castps128_ps256(x),
+        _mm256_setr_epi32(0, 0, 1, 1, 2, 2, 3, 3),
+    )
+}
+
+/// A coordinate of both children, `[b₀ b₁ b₀ b₁ b₀ b₁ b₀ b₁]`: one load.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn pair(p: &[f32; 2]) -> __m256 {
+    _mm256_castpd_ps(_mm256_set1_pd(f64::from_bits(bytemuck::cast(*p))))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Ray;
+    use crate::geometry::bounds::{Aabb, lanes};
+    use glam::DVec3;
+    use proptest::prelude::*;
+
+    /// Coordinates on a coarse grid, so that rays graze faces, edges and corners.
+    fn coord() -> impl Strategy<Value = f64> {
+        prop_oneof![(-8i32..8).prop_map(|c| c as f64 * 0.5), -4.0f64..4.0]
+    }
+
+    fn aabb() -> impl Strategy<Value = Aabb> {
+        (
+            prop::array::uniform3(coord()),
+            prop::array::uniform3(0.0f64..3.0),
+        )
+            .prop_map(|(lo, size)| Aabb {
+                min: DVec3::from(lo),
+                max: DVec3::from(lo) + DVec3::from(size),
+            })
+    }
+
+    fn dir() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            Just(1.0),
+            Just(-1.0),
+            Just(0.5),
+            -1.0f64..-1e-3,
+            1e-3f64..1.0
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(512))]
+
+        #[test]
+        fn sixteen_lanes_give_what_four_lanes_give_bit_for_bit(
+            a in aabb(),
+            b in aabb(),
+            origins in prop::array::uniform8(prop::array::uniform3(coord())),
+            shared in any::<bool>(),
+            dirs in prop::array::uniform8(prop::array::uniform3(dir())),
+            t_max in prop::array::uniform8(prop_oneof![Just(f64::INFINITY), 0.0f64..12.0]),
+            t_min in prop_oneof![Just(0.0), 0.0f64..2.0],
+        ) {
+            let rays: [Ray; 8] = std::array::from_fn(|k| {
+                let o = if shared { origins[0] } else { origins[k] };
+                Ray::new(DVec3::from(o), DVec3::from(dirs[k]))
+            });
+            let (lo, hi) = super::super::halves(&rays);
+            let four = [lo, hi].map(|r| SlabRay4::new(r).expect("no zero direction component"));
+            let Some(avx512) = Avx512::detect() else {
+                // Nothing to compare on a processor without AVX-512.
+                return Ok(());
+            };
+            let pair = BoxPair32::new(&a, &b);
+            let wide = avx512.widen(&four).enter_pair8(&pair, t_min as f32, &t_max);
+            let narrow = four.enter_pair8(&pair, t_min as f32, &t_max);
+            for c in 0..2 {
+                prop_assert_eq!(wide[c].0, narrow[c].0, "child {}", c);
+                prop_assert_eq!(
+                    wide[c].1.to_array().map(f32::to_bits),
+                    narrow[c].1.to_array().map(f32::to_bits),
+                    "child {}", c
+                );
+            }
+            // And each half is `enter_pair`'s for its four rays.
+            let (t_lo, t_hi) = super::super::halves(&t_max);
+            for (h, t) in [t_lo, t_hi].into_iter().enumerate() {
+                let half = four[h].enter_pair(&pair, t_min as f32, t);
+                for c in 0..2 {
+                    prop_assert_eq!((narrow[c].0 >> (4 * h)) & 0b1111, half[c].0);
+                    prop_assert_eq!(
+                        &narrow[c].1.to_array()[4 * h..4 * h + 4],
+                        &half[c].1.to_array()[..]
+                    );
+                }
+            }
+        }
+
+        #[test]
+        fn eight_lanes_give_what_four_lanes_give_bit_for_bit(
+            a in aabb(),
+            b in aabb(),
+            origins in prop::array::uniform4(prop::array::uniform3(coord())),
+            shared in any::<bool>(),
+            dirs in prop::array::uniform4(prop::array::uniform3(dir())),
+            t_max in prop::array::uniform4(prop_oneof![Just(f64::INFINITY), 0.0f64..12.0]),
+            t_min in prop_oneof![Just(0.0), 0.0f64..2.0],
+        ) {
+            let rays: [Ray; 4] = [0, 1, 2, 3].map(|k| {
+                let o = if shared { origins[0] } else { origins[k] };
+                Ray::new(DVec3::from(o), DVec3::from(dirs[k]))
+            });
+            let four = SlabRay4::new(&rays).expect("no zero direction component");
+            let Some(avx2) = Avx2::detect() else {
+                // Nothing to compare on a processor without AVX2.
+                return Ok(());
+            };
+            let eight = avx2.widen(&four);
+            let pair = BoxPair32::new(&a, &b);
+            let wide = eight.enter_pair(&pair, t_min as f32, &t_max);
+            let narrow = four.enter_pair(&pair, t_min as f32, &t_max);
+            for c in 0..2 {
+                prop_assert_eq!(wide[c].0, narrow[c].0, "child {}", c);
+                prop_assert_eq!(
+                    wide[c].1.to_array().map(f32::to_bits),
+                    narrow[c].1.to_array().map(f32::to_bits),
+                    "child {}", c
+                );
+            }
+            // And the four lanes are `enter`'s, child by child.
+            for (c, boxed) in [a, b].iter().enumerate() {
+                let (hit, near) = four.enter(
+                    &super::super::box32(boxed),
+                    f32x4::splat(t_min as f32),
+                    lanes(&t_max),
+                );
+                prop_assert_eq!(hit, narrow[c].0);
+                prop_assert_eq!(near.to_array(), narrow[c].1.to_array());
+            }
+        }
+    }
+}
