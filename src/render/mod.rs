@@ -19,8 +19,8 @@ pub use cost::{CostError, Estimate, RayBudget, TooCostly, Work};
 pub use rect::{OutsideFrame, ParseRectError, Rect, region_in_frame};
 pub use shade::{Conventions, Lecture, RayCount, Shader, quantise};
 pub use tiles::{
-    BAND_PIXELS, Cancel, DEFAULT_TILE_PX, Kernel, RenderStats, Scheduler, SinkClosed, Step,
-    Stopped, Tile, TileCursor, TileShape, TileSink, run, trace_tile,
+    BAND_PIXELS, Cancel, DEFAULT_TILE_PX, Kernel, PACKET_PIXELS, RenderStats, Scheduler,
+    SinkClosed, Step, Stopped, Tile, TileCursor, TileShape, TileSink, run, trace_tile,
 };
 
 /// A scene prepared for tracing: its acceleration structure and camera.
@@ -169,15 +169,15 @@ fn row_in_eights<K: Kernel>(
     (u, v, width): (u32, u32, u32),
     rays: &mut u64,
     out: &mut Vec<K::Pixel>,
-    eight: impl Fn(u32, &mut u64) -> Option<[K::Pixel; 8]>,
+    eight: impl Fn(u32, &mut u64) -> Option<[K::Pixel; PACKET_PIXELS as usize]>,
 ) {
     let mut x = u;
-    while x + 8 <= u + width {
+    while x + PACKET_PIXELS <= u + width {
         match eight(x, rays) {
             Some(p) => out.extend(p),
             None => break,
         }
-        x += 8;
+        x += PACKET_PIXELS;
     }
     for x in x..u + width {
         out.push(kernel.pixel(x, v, rays));
