@@ -5,8 +5,8 @@
 //! - tiles: the band being filled (at most [`BAND_PIXELS`] pixels, or one tile when
 //!   tiles are larger), the tiles finished ahead of a slower one (`window` of them) and
 //!   those being traced (`lanes`), each pixel as the assembler holds it; for NPY also
-//!   the encoded tiles queued for the worker writing and the spent buffers kept for
-//!   reuse ([`QUEUED_TILES`] of each);
+//!   the encoded tiles queued for the worker writing ([`QUEUED_TILES`]) and the spent
+//!   buffers kept for reuse ([`QUEUED_TILES`] of them, or a band's records);
 //! - encoded bytes: what one tile releases at once (a band's records), the pieces the
 //!   sinks build ([`PIECE_BYTES`]), and what may wait for the client before the render
 //!   parks (`in_flight_bytes`, the body's bound);
@@ -59,13 +59,14 @@ pub fn footprint(
     let lanes = (LANES_PER_THREAD * threads.max(1)) as u64;
     let window = WINDOW_PER_LANE as u64 * lanes;
     let band = BAND_PIXELS.max(tile);
-    // NPY queues encoded tiles for the worker writing, and keeps spent buffers.
-    let queued = if format == Some(HitFormat::Npy) {
-        2 * QUEUED_TILES as u64
+    // NPY queues encoded tiles for the worker writing, and keeps spent buffers: as
+    // many tiles as it queues, or a band's records.
+    let (queued, spare_band) = if format == Some(HitFormat::Npy) {
+        (2 * QUEUED_TILES as u64, band)
     } else {
-        0
+        (0, 0)
     };
-    let tiles = (band + (window + lanes + queued) * tile) * held;
+    let tiles = (band + spare_band + (window + lanes + queued) * tile) * held;
     let written = band * encoded + PIECE_BYTES as u64 + in_flight_bytes as u64;
     let png_rows = if format.is_none() {
         9 * region.width as u64

@@ -12,7 +12,7 @@ use super::rows::{PIECE_BYTES, QUEUED_TILES, RowAssembler};
 use crate::format::npy::{NPY_RECORD_BYTES, npy_header, npy_record_bytes};
 use crate::format::{HitFormat, PixelHit, csv, json, ndjson};
 use crate::geometry::Surface;
-use crate::render::{Rect, SinkClosed, Tile, TileShape, TileSink};
+use crate::render::{BAND_PIXELS, Rect, SinkClosed, Tile, TileShape, TileSink};
 use crate::scene::Scene;
 
 fn closed(e: impl std::fmt::Display) -> SinkClosed {
@@ -115,7 +115,7 @@ impl<W: Write + Send> HitSink<W> {
                             },
                             |pixels| {
                                 if let Ok(mut spare) = self.npy.spare.lock()
-                                    && spare.len() < QUEUED_TILES
+                                    && keeps_spare(&spare, &pixels)
                                 {
                                     spare.push(pixels);
                                 }
@@ -167,6 +167,18 @@ impl<W: Write + Send> HitSink<W> {
             .map(|s| s.out)
             .map_err(|_| io::Error::other("a worker panicked while writing"))
     }
+}
+
+/// Whether a written tile's record buffer is kept for the next tiles, beside those
+/// already kept: while they hold [`QUEUED_TILES`] tiles or a band's records at most.
+/// A band's tiles are written together once its last one is in, so keeping fewer
+/// freed most of them, and the next band's tiles were encoded into fresh pages.
+fn keeps_spare(
+    spare: &[Vec<[u8; NPY_RECORD_BYTES]>],
+    buffer: &Vec<[u8; NPY_RECORD_BYTES]>,
+) -> bool {
+    let kept: usize = spare.iter().map(Vec::capacity).sum();
+    spare.len() < QUEUED_TILES || kept + buffer.capacity() <= BAND_PIXELS as usize
 }
 
 impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<W> {
@@ -232,6 +244,8 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<W> {
                     .pop()
                     .unwrap_or_default();
                 records.clear();
+                // Exactly a tile: a kept buffer counts its capacity (`keeps_spare`).
+                records.reserve_exact(tile.pixels.len());
                 records.extend(tile.pixels.iter().enumerate().map(|(k, s)| {
                     npy_record_bytes(r.x + k as u32 % r.width, r.y + k as u32 / r.width, s)
                 }));
@@ -309,6 +323,55 @@ mod tests {
         for threads in [2, 4, 8] {
             assert!(write(threads) == one, "{threads} threads");
         }
+    }
+
+    #[test]
+    fn a_written_band_leaves_its_record_buffers_for_the_next() {
+        let scene = Arc::new(
+            crate::scene::parse(include_bytes!("../../scenes/lecture.json"), &Limits::NONE)
+                .unwrap(),
+        );
+        // A frame 1280 wide: bands of sixteen tiles of 80 × 12.
+        let region = Rect::frame(1280, 24);
+        let sink = HitSink::new(scene, HitFormat::Npy, Vec::new(), region).unwrap();
+        let shape = sink.tile_shape(region, 32);
+        let tiles = shape.cut(region);
+        assert_eq!(tiles.len(), 32);
+        for &t in &tiles[..16] {
+            sink.tile(Tile::filled(t, surface)).unwrap();
+        }
+        sink.drain_records(true).unwrap();
+        let kept = |sink: &HitSink<Vec<u8>>| sink.npy.spare.lock().unwrap().len();
+        assert_eq!(kept(&sink), 16, "every buffer of the first band is kept");
+        // The second band is encoded into them, and leaves as many.
+        for &t in &tiles[16..] {
+            sink.tile(Tile::filled(t, surface)).unwrap();
+        }
+        sink.drain_records(true).unwrap();
+        assert_eq!(kept(&sink), 16);
+        sink.finish().unwrap();
+    }
+
+    #[test]
+    fn spare_buffers_hold_a_band_or_queued_tiles_at_most() {
+        let buffers = |n: usize, records: usize| -> Vec<Vec<[u8; NPY_RECORD_BYTES]>> {
+            (0..n).map(|_| Vec::with_capacity(records)).collect()
+        };
+        let band = BAND_PIXELS as usize;
+        // Small tiles: as many as a band holds.
+        let tile = band / 16;
+        assert!(keeps_spare(&buffers(15, tile), &buffers(1, tile)[0]));
+        assert!(!keeps_spare(&buffers(16, tile), &buffers(1, tile)[0]));
+        // Large tiles: the queued count still.
+        let tile = band;
+        assert!(keeps_spare(
+            &buffers(QUEUED_TILES - 1, tile),
+            &buffers(1, tile)[0]
+        ));
+        assert!(!keeps_spare(
+            &buffers(QUEUED_TILES, tile),
+            &buffers(1, tile)[0]
+        ));
     }
 
     #[test]
