@@ -265,6 +265,8 @@ impl World {
                 t_min,
                 &mut limit,
                 0xff,
+                // Inlined into each traversal that calls it (the BVH has one per lane
+                // width).
                 #[inline(always)]
                 |i, active, limit| {
                     self.consider8(i, rays, from_view, t_min, active, limit, &mut best)

@@ -110,6 +110,9 @@ impl Renderer {
     }
 }
 
+// The packets below are of eight rays, a packet's pixels in a row.
+const _: () = assert!(PACKET_PIXELS == 8);
+
 impl Renderer {
     /// The primary rays of pixels `(u, v)` to `(u + 7, v)`.
     #[inline]
@@ -121,19 +124,21 @@ impl Renderer {
         rays
     }
 
-    /// [`Renderer::pixel_hit`] of pixels `(u, v)` to `(u + 7, v)`, their rays traced
-    /// as a packet: the same eight hits, bit for bit.
+    /// Appends to `out` [`Renderer::pixel_hit`] of pixels `(u, v)` to `(u + 7, v)`,
+    /// their rays traced as a packet: the same eight hits, bit for bit. Each record is
+    /// made in its place in `out`, not in an array copied there (a hundred bytes a
+    /// pixel).
     #[inline]
-    pub fn pixel_hits8(&self, u: u32, v: u32) -> [Option<Surface>; 8] {
+    pub fn pixel_hits8(&self, u: u32, v: u32, out: &mut Vec<Option<Surface>>) {
         let rays = self.pixel_rays8(u, v);
         let hits = self
             .world
             .closest8(&rays, PRIMARY_LAMBDA_MIN, f64::INFINITY);
-        let mut out = [None; 8];
-        for k in 0..8 {
-            out[k] = hits[k].map(|h| self.hit_record::<Lecture>(&rays[k], &h));
-        }
-        out
+        out.extend(
+            hits.iter()
+                .zip(&rays)
+                .map(|(h, ray)| h.map(|h| self.hit_record::<Lecture>(ray, &h))),
+        );
     }
 
     /// [`Renderer::pixel_colour`] of pixels `(u, v)` to `(u + 7, v)` of a scene of one
@@ -160,23 +165,20 @@ impl Renderer {
     }
 }
 
-/// Pixels `(u, v)` to `(u + width − 1, v)` into `out`: eight at a time from `eight`
-/// (which counts its rays into `rays`) while it gives them, the rest from the kernel's
+/// Pixels `(u, v)` to `(u + width − 1, v)` into `out`: [`PACKET_PIXELS`] at a time
+/// from `packet` (which appends them to `out` and counts its rays into `rays`, or
+/// appends nothing and says `false`) while it gives them, the rest from the kernel's
 /// own [`Kernel::pixel`].
 #[inline]
-fn row_in_eights<K: Kernel>(
+fn row_in_packets<K: Kernel>(
     kernel: &K,
     (u, v, width): (u32, u32, u32),
     rays: &mut u64,
     out: &mut Vec<K::Pixel>,
-    eight: impl Fn(u32, &mut u64) -> Option<[K::Pixel; PACKET_PIXELS as usize]>,
+    packet: impl Fn(u32, &mut u64, &mut Vec<K::Pixel>) -> bool,
 ) {
     let mut x = u;
-    while x + PACKET_PIXELS <= u + width {
-        match eight(x, rays) {
-            Some(p) => out.extend(p),
-            None => break,
-        }
+    while x + PACKET_PIXELS <= u + width && packet(x, rays, out) {
         x += PACKET_PIXELS;
     }
     for x in x..u + width {
@@ -200,11 +202,14 @@ impl Kernel for ColourKernel<'_> {
     #[inline]
     fn row(&self, u: u32, v: u32, width: u32, rays: &mut u64, out: &mut Vec<[u8; 3]>) {
         let gamma = self.0.scene.gamma;
-        row_in_eights(self, (u, v, width), rays, out, |x, rays| {
+        row_in_packets(self, (u, v, width), rays, out, |x, rays, out| {
             let mut n = RayCount(0);
-            let c = self.0.pixel_colours8(x, v, &mut n)?;
+            let Some(c) = self.0.pixel_colours8(x, v, &mut n) else {
+                return false;
+            };
             *rays += n.0;
-            Some(c.map(|c| quantise(c, gamma)))
+            out.extend(c.map(|c| quantise(c, gamma)));
+            true
         });
     }
 }
@@ -226,11 +231,14 @@ impl Kernel for LinearKernel<'_> {
 
     #[inline]
     fn row(&self, u: u32, v: u32, width: u32, rays: &mut u64, out: &mut Vec<[f32; 3]>) {
-        row_in_eights(self, (u, v, width), rays, out, |x, rays| {
+        row_in_packets(self, (u, v, width), rays, out, |x, rays, out| {
             let mut n = RayCount(0);
-            let c = self.0.pixel_colours8(x, v, &mut n)?;
+            let Some(c) = self.0.pixel_colours8(x, v, &mut n) else {
+                return false;
+            };
             *rays += n.0;
-            Some(c.map(|c| c.as_vec3().to_array()))
+            out.extend(c.map(|c| c.as_vec3().to_array()));
+            true
         });
     }
 }
@@ -248,9 +256,10 @@ impl Kernel for HitKernel<'_> {
 
     #[inline]
     fn row(&self, u: u32, v: u32, width: u32, rays: &mut u64, out: &mut Vec<Option<Surface>>) {
-        row_in_eights(self, (u, v, width), rays, out, |x, rays| {
-            *rays += 8;
-            Some(self.0.pixel_hits8(x, v))
+        row_in_packets(self, (u, v, width), rays, out, |x, rays, out| {
+            *rays += u64::from(PACKET_PIXELS);
+            self.0.pixel_hits8(x, v, out);
+            true
         });
     }
 }
