@@ -12,38 +12,57 @@ use wide::f32x4;
 use super::{BoxPair32, GROW, PairTest, PairTest8, SHRINK, SlabRay4};
 use wide::f32x8;
 
-/// Proof that this processor has AVX2, and the way into code compiled for it.
-#[derive(Debug, Clone, Copy)]
-pub struct Avx2(());
+/// A proof type that the processor has the instruction sets `$feature`, its `detect`,
+/// and its `run`, which calls a closure inlined into a function compiled for them
+/// (`$inside`, with `#[target_feature(enable = $enable)]`, the same sets: the
+/// attribute takes one literal, the detection one set at a time).
+macro_rules! instruction_sets {
+    ($(#[$doc:meta])* $name:ident, $inside:ident, [$($feature:tt),+], $enable:literal) => {
+        $(#[$doc])*
+        #[derive(Debug, Clone, Copy)]
+        pub struct $name(());
+
+        impl $name {
+            /// `Some` where this processor has these instruction sets.
+            #[inline]
+            pub fn detect() -> Option<$name> {
+                ($(is_x86_feature_detected!($feature))&&+).then_some($name(()))
+            }
+
+            /// Runs `f` inlined into a function compiled for these instruction sets, so
+            /// that the box tests it makes through them (and all else it inlines) are
+            /// compiled for them.
+            #[inline(always)]
+            pub fn run<R>(self, f: impl FnOnce() -> R) -> R {
+                // SAFETY: a proof exists only where the processor has them (`detect`).
+                unsafe { $inside(f) }
+            }
+        }
+
+        /// `f()`, compiled for these instruction sets where it is inlined here.
+        #[target_feature(enable = $enable)]
+        fn $inside<R>(f: impl FnOnce() -> R) -> R {
+            f()
+        }
+    };
+}
+
+instruction_sets!(
+    /// Proof that this processor has AVX2, and the way into code compiled for it.
+    Avx2,
+    in_avx2,
+    ["avx2"],
+    "avx2"
+);
 
 impl Avx2 {
-    /// `Some` where this processor has AVX2.
-    #[inline]
-    pub fn detect() -> Option<Avx2> {
-        is_x86_feature_detected!("avx2").then_some(Avx2(()))
-    }
-
-    /// Runs `f` inlined into a function compiled for AVX2, so that the box tests it
-    /// makes through a [`SlabRay8`] (and all else it inlines) are AVX2 code.
-    #[inline(always)]
-    pub fn run<R>(self, f: impl FnOnce() -> R) -> R {
-        // SAFETY: an `Avx2` exists only where the processor has AVX2 (`detect`).
-        unsafe { in_avx2(f) }
-    }
-
     /// `rays` in eight lanes (inside [`Avx2::run`], where it compiles to a few
     /// permutations).
     #[inline(always)]
     pub fn widen(self, rays: &SlabRay4) -> SlabRay8 {
-        // SAFETY: as in `run`.
+        // SAFETY: an `Avx2` exists only where the processor has AVX2 (`detect`).
         unsafe { widen(rays) }
     }
-}
-
-/// `f()`, compiled for AVX2 where it is inlined here.
-#[target_feature(enable = "avx2")]
-fn in_avx2<R>(f: impl FnOnce() -> R) -> R {
-    f()
 }
 
 /// A [`SlabRay4`] in eight lanes, each ray twice: lane `2r + c` is ray `r` against
@@ -91,39 +110,22 @@ impl PairTest for SlabRay8 {
     }
 }
 
-/// Proof that this processor has AVX-512 (its foundation), and the way into code
-/// compiled for it.
-#[derive(Debug, Clone, Copy)]
-pub struct Avx512(());
+instruction_sets!(
+    /// Proof that this processor has AVX-512 (its foundation) and AVX2, and the way
+    /// into code compiled for them.
+    Avx512,
+    in_avx512,
+    ["avx512f", "avx2"],
+    "avx512f,avx2"
+);
 
 impl Avx512 {
-    /// `Some` where this processor has AVX-512 F (and so AVX2).
-    #[inline]
-    pub fn detect() -> Option<Avx512> {
-        (is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("avx2"))
-            .then_some(Avx512(()))
-    }
-
-    /// Runs `f` inlined into a function compiled for AVX-512, so that the box tests
-    /// it makes through a [`SlabRay16`] are AVX-512 code.
-    #[inline(always)]
-    pub fn run<R>(self, f: impl FnOnce() -> R) -> R {
-        // SAFETY: an `Avx512` exists only where the processor has it (`detect`).
-        unsafe { in_avx512(f) }
-    }
-
     /// Eight rays, as two packets of four, in sixteen lanes.
     #[inline(always)]
     pub fn widen(self, rays: &[SlabRay4; 2]) -> SlabRay16 {
-        // SAFETY: as in `run`.
+        // SAFETY: an `Avx512` exists only where the processor has it (`detect`).
         unsafe { widen16(rays) }
     }
-}
-
-/// `f()`, compiled for AVX-512 where it is inlined here.
-#[target_feature(enable = "avx512f,avx2")]
-fn in_avx512<R>(f: impl FnOnce() -> R) -> R {
-    f()
 }
 
 /// Eight rays in sixteen lanes, each ray twice: lane `2r + c` is ray `r` against

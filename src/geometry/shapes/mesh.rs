@@ -143,6 +143,7 @@ impl CanonicalShape for Mesh {
             t_min,
             &mut limits,
             active,
+            // Inlined into each traversal that calls it (the BVH has one per lane width).
             #[inline(always)]
             |k, rays_in, limits| {
                 let (tri, id) = (&a.tris[k as usize], a.ids[k as usize]);
