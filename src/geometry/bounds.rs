@@ -309,12 +309,14 @@ impl<P: PairTest> PairTest8 for [P; 2] {
 /// The first four and the last four of eight.
 #[inline(always)]
 pub fn halves<T>(x: &[T; 8]) -> (&[T; 4], &[T; 4]) {
-    let (lo, hi) = x.split_first_chunk::<4>().expect("eight is four and four");
-    (lo, hi.first_chunk::<4>().expect("eight is four and four"))
+    let [lo @ .., _, _, _, _] = x;
+    let [_, _, _, _, hi @ ..] = x;
+    (lo, hi)
 }
 
 /// The lanes of eight rays whose entry `λ` (as [`PairTest8::enter_pair8`] gives it) is
-/// at most their `t_max`, rounding forgiven: [`SlabRay4::within`] for each half.
+/// at most their `t_max` (rounded to the nearest `f32`), rounding forgiven: a traversal
+/// pops a subtree only for rays that may still find something nearer, or tied, in it.
 #[inline(always)]
 pub fn within8(near: f32x8, t_max: &[f64; 8]) -> u32 {
     near.simd_le(f32x8::new(t_max.map(|x| x as f32)) * f32x8::splat(GROW))
@@ -432,6 +434,14 @@ impl SlabRay4 {
         })
     }
 
+    /// Eight rays as two packets of four (the first four, the last four), or `None`
+    /// where either half is refused ([`SlabRay4::new`]).
+    #[inline]
+    pub fn pair(rays: &[Ray; 8]) -> Option<[SlabRay4; 2]> {
+        let (lo, hi) = halves(rays);
+        Some([SlabRay4::new(lo)?, SlabRay4::new(hi)?])
+    }
+
     /// One ray in all four lanes, as [`SlabRay4::new`] makes four copies of it: for
     /// testing four boxes at once ([`SlabRay4::enter_lanes`]), at a third of the cost
     /// of gathering four rays.
@@ -483,13 +493,6 @@ impl SlabRay4 {
         let near = near * f32x4::splat(SHRINK);
         let hit = near.simd_le(far * f32x4::splat(GROW));
         (hit.to_bitmask(), near)
-    }
-
-    /// The lanes whose entry `λ` (a lower bound, as [`SlabRay4::enter`] gives it) is
-    /// at most their `t_max`, rounding forgiven.
-    #[inline(always)]
-    pub fn within(near: f32x4, t_max: &[f64; 4]) -> u32 {
-        near.simd_le(lanes(t_max) * f32x4::splat(GROW)).to_bitmask()
     }
 }
 
@@ -639,8 +642,11 @@ mod tests {
         );
         assert_eq!(hit, 0b0010);
         assert_eq!(
-            SlabRay4::within(f32x4::splat(2.0), &[1.0, 2.0, 3.0, 1.999_999_9]),
-            0b1110
+            within8(
+                f32x8::splat(2.0),
+                &[1.0, 2.0, 3.0, 1.999_999_9, 1.0, 2.0, 3.0, 1.999_999_9]
+            ),
+            0b1110_1110
         );
     }
 

@@ -516,6 +516,8 @@ impl Bvh {
                     continue;
                 }
             }
+            // Pop the next subtree that some ray may still find something nearer (or
+            // tied) in.
             loop {
                 let Some((node, m, near)) = stack.pop() else {
                     return;
@@ -1239,10 +1241,8 @@ mod tests {
         ) {
             let bvh = Bvh::build(&boxes, test_cost);
             for rays in packets {
-                let rays8 = rays.map(|(o, d)| Ray::new(o, d));
-                let (lo, hi) = halves(&rays8);
-                let slab = [lo, hi]
-                    .map(|r| SlabRay4::new(r).expect("no zero direction component"));
+                let slab = SlabRay4::pair(&rays.map(|(o, d)| Ray::new(o, d)))
+                    .expect("no zero direction component");
                 // The traversal as dispatched (sixteen lanes where the processor has
                 // AVX-512, else eight where it has AVX2), the one of eight lanes, and
                 // the portable one of four.

@@ -10,7 +10,7 @@ use glam::{DAffine3, DMat3, DVec3};
 use rayon::prelude::*;
 
 use super::{
-    bounds::{Aabb, SlabRay, SlabRay4, halves, lanes_of},
+    bounds::{Aabb, SlabRay, SlabRay4, lanes_of},
     bvh::Bvh,
     hit::{Hit, Probe, Surface},
     ray::Ray,
@@ -239,13 +239,10 @@ impl World {
         let lone = self.lone();
         let slab = match lone {
             Some(_) => None,
-            None => {
-                let (lo, hi) = halves(rays);
-                match (SlabRay4::new(lo), SlabRay4::new(hi)) {
-                    (Some(lo), Some(hi)) => Some([lo, hi]),
-                    _ => return rays.map(|r| self.closest(&r, t_min, t_max)),
-                }
-            }
+            None => match SlabRay4::pair(rays) {
+                Some(slab) => Some(slab),
+                None => return rays.map(|r| self.closest(&r, t_min, t_max)),
+            },
         };
         let mut from_view = [false; 8];
         for (f, r) in from_view.iter_mut().zip(rays) {

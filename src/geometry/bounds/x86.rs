@@ -292,8 +292,7 @@ mod tests {
                 let o = if shared { origins[0] } else { origins[k] };
                 Ray::new(DVec3::from(o), DVec3::from(dirs[k]))
             });
-            let (lo, hi) = super::super::halves(&rays);
-            let four = [lo, hi].map(|r| SlabRay4::new(r).expect("no zero direction component"));
+            let four = SlabRay4::pair(&rays).expect("no zero direction component");
             let Some(avx512) = Avx512::detect() else {
                 // Nothing to compare on a processor without AVX-512.
                 return Ok(());

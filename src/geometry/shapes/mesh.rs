@@ -13,7 +13,7 @@ use glam::DVec3;
 
 use super::CanonicalShape;
 use crate::geometry::{
-    bounds::{Aabb, SlabRay, SlabRay4, halves, lanes_of, per_lane},
+    bounds::{Aabb, SlabRay, SlabRay4, lanes_of, per_lane},
     bvh::Bvh,
     hit::{Probe, TriangleTest},
     ray::Ray,
@@ -126,10 +126,7 @@ impl CanonicalShape for Mesh {
         let a = self.accel();
         // A packet pays for more than one ray only.
         let slab = (active.count_ones() > 1)
-            .then(|| {
-                let (lo, hi) = halves(rays);
-                Some([SlabRay4::new(lo)?, SlabRay4::new(hi)?])
-            })
+            .then(|| SlabRay4::pair(rays))
             .flatten();
         let Some(slab) = slab else {
             return per_lane(active, |lane| {
