@@ -65,15 +65,19 @@ impl Avx2 {
     }
 }
 
-/// A [`SlabRay4`] in eight lanes, each ray twice: lane `2r + c` is ray `r` against
-/// child `c`, so that one 64-bit load of a [`BoxPair32`] coordinate, broadcast, lines
-/// up with it. Made only by [`Avx2::widen`], so only where the processor has AVX2.
+/// A packet's [`SlabRay4`] numbers in wider vectors `V`, each ray twice: lane `2r + c`
+/// is ray `r` against child `c`, so that one 64-bit load of a [`BoxPair32`]
+/// coordinate, broadcast, lines up with it.
 #[derive(Debug, Clone, Copy)]
-pub struct SlabRay8 {
-    o_down: [__m256; 3],
-    o_up: [__m256; 3],
-    inv: [__m256; 3],
+pub struct WideSlab<V> {
+    o_down: [V; 3],
+    o_up: [V; 3],
+    inv: [V; 3],
 }
+
+/// A [`SlabRay4`] in eight AVX2 lanes. Made only by [`Avx2::widen`], so only where the
+/// processor has AVX2.
+pub type SlabRay8 = WideSlab<__m256>;
 
 impl SlabRay8 {
     /// [`PairTest::enter_pair`], in AVX2.
@@ -128,15 +132,9 @@ impl Avx512 {
     }
 }
 
-/// Eight rays in sixteen lanes, each ray twice: lane `2r + c` is ray `r` against
-/// child `c`, so that one 64-bit load of a [`BoxPair32`] coordinate, broadcast, lines
-/// up with it (as in [`SlabRay8`]). Made only by [`Avx512::widen`].
-#[derive(Debug, Clone, Copy)]
-pub struct SlabRay16 {
-    o_down: [__m512; 3],
-    o_up: [__m512; 3],
-    inv: [__m512; 3],
-}
+/// Eight rays (two [`SlabRay4`]s) in sixteen AVX-512 lanes. Made only by
+/// [`Avx512::widen`], so only where the processor has AVX-512.
+pub type SlabRay16 = WideSlab<__m512>;
 
 /// Lane `2r + c` ← lane `r`: each of eight lanes twice.
 #[inline]
