@@ -508,6 +508,16 @@ pub fn lanes_of(mut bits: u32) -> impl Iterator<Item = usize> {
     })
 }
 
+/// The lanes of `bits` for which `each(lane)` holds, as a bit set.
+#[inline(always)]
+pub fn lanes_where(bits: u32, mut each: impl FnMut(usize) -> bool) -> u32 {
+    let mut out = 0;
+    for lane in lanes_of(bits) {
+        out |= (each(lane) as u32) << lane;
+    }
+    out
+}
+
 /// `each(lane)` for the lanes of `bits`, `T::default()` in the others: a packet's
 /// rays taken one at a time.
 #[inline(always)]

@@ -17,7 +17,7 @@ use rayon::prelude::*;
 #[cfg(target_arch = "x86_64")]
 use super::bounds::x86::{Avx2, Avx512};
 use super::bounds::{
-    Aabb, Box32, BoxPair32, PairTest8, SlabRay, SlabRay4, box32, halves, lanes, within8,
+    Aabb, Box32, BoxPair32, PairTest8, SlabRay, SlabRay4, box32, halves, lanes, lanes_of, within8,
 };
 use super::ray::Ray;
 use wide::{f32x4, f32x8};
@@ -450,6 +450,48 @@ impl Bvh {
         self.traverse8(rays, rays, t_min, t_max, active, leaf)
     }
 
+    /// Which of eight rays (the lanes of `active`, a packet given as two of four) some
+    /// primitive occludes within `(t_min, t_max[lane])`: the bit set of those.
+    /// `leaf(prim, rays)` tests one primitive for the rays of the bit set `rays` (those
+    /// that entered its leaf and are not yet occluded) and returns those it occludes.
+    ///
+    /// The traversal is [`Bvh::closest8`]'s: an occluded ray's limit drops to −∞, so
+    /// it enters no further box and no subtree is popped for it, and the traversal
+    /// ends once every ray is occluded or has left the tree. Each ray is given every
+    /// primitive [`Bvh::any`] would give it until one occludes it, so the answer is the
+    /// same as alone.
+    #[inline]
+    pub fn any8<F: FnMut(u32, u32) -> u32>(
+        &self,
+        rays: &[SlabRay4; 2],
+        t_min: f64,
+        t_max: [f64; 8],
+        active: u32,
+        mut leaf: F,
+    ) -> u32 {
+        let mut occluded = 0;
+        let mut limits = t_max;
+        self.closest8(
+            rays,
+            t_min,
+            &mut limits,
+            active,
+            #[inline(always)]
+            |prim, rays_in, limits| {
+                let open = rays_in & !occluded;
+                if open == 0 {
+                    return;
+                }
+                let found = leaf(prim, open) & open;
+                occluded |= found;
+                for lane in lanes_of(found) {
+                    limits[lane] = f64::NEG_INFINITY;
+                }
+            },
+        );
+        occluded
+    }
+
     /// [`Bvh::closest8`], testing each node's boxes with `pairs` (`rays` themselves, or
     /// the same rays in wider lanes).
     #[inline(always)]
@@ -844,7 +886,6 @@ impl Builder {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::bounds::lanes_of;
 
     fn unit_box(c: DVec3) -> Aabb {
         Aabb {
@@ -1158,6 +1199,7 @@ mod tests {
         ]
     }
 
+    use crate::geometry::bounds::lanes_where;
     use proptest::prelude::*;
 
     proptest! {
@@ -1284,6 +1326,42 @@ mod tests {
                             "path {} lane {} ray {:?} + λ {:?}", path, lane, o, d
                         );
                     }
+                }
+            }
+        }
+
+        #[test]
+        fn packets_of_shadow_rays_find_what_every_box_finds(
+            boxes in prop::collection::vec(grid_box(), 1..80),
+            packets in prop::collection::vec(packet(), 1..12),
+            active in 1u32..256,
+            reach in prop::array::uniform8(prop_oneof![Just(f64::INFINITY), 0.5f64..30.0]),
+        ) {
+            let bvh = Bvh::build(&boxes, 1.0);
+            for rays in packets {
+                let slab = SlabRay4::pair(&rays.map(|(o, d)| Ray::new(o, d)))
+                    .expect("no zero direction component");
+                let blocks = |i: u32, lane: usize| {
+                    let (o, d) = rays[lane];
+                    box_surface(&boxes[i as usize], o, d, 1e-9, reach[lane]).is_some()
+                };
+                // Lanes shown a box: only active ones, and none once a box blocked it.
+                let (mut shown, mut blocked, mut shown_after) = (0u32, 0u32, 0u32);
+                let occluded = bvh.any8(&slab, 1e-9, reach, active, |i, lanes| {
+                    shown |= lanes;
+                    shown_after |= lanes & blocked;
+                    let found = lanes_where(lanes, |lane| blocks(i, lane));
+                    blocked |= found;
+                    found
+                });
+                prop_assert_eq!(shown & !active, 0);
+                prop_assert_eq!(shown_after, 0);
+                for (lane, &(o, d)) in rays.iter().enumerate() {
+                    let every = (0..boxes.len() as u32).any(|i| blocks(i, lane));
+                    prop_assert_eq!(
+                        occluded >> lane & 1 == 1, every && active >> lane & 1 == 1,
+                        "lane {} ray {:?} + λ {:?} to {}", lane, o, d, reach[lane]
+                    );
                 }
             }
         }

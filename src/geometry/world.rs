@@ -10,7 +10,7 @@ use glam::{DAffine3, DMat3, DVec3};
 use rayon::prelude::*;
 
 use super::{
-    bounds::{Aabb, SlabRay, SlabRay4, lanes_of},
+    bounds::{Aabb, SlabRay, SlabRay4, lanes_of, lanes_where},
     bvh::Bvh,
     hit::{Hit, Probe, Surface},
     ray::Ray,
@@ -313,6 +313,59 @@ impl World {
                 Some(i) => test(i),
                 None => self.bvh.any(ray, t_min, t_max, test),
             }
+    }
+
+    /// [`World::occluded`] for the shadow rays of `active` (lanes of a packet), each
+    /// within `(t_min, t_max[lane])`: the bit set of those blocked, each as it is alone.
+    ///
+    /// A lone object's own hierarchy (a mesh's) is traversed once for all of them
+    /// ([`World::traces_shadow_packets`]). Over a tree of objects each ray goes alone:
+    /// shadow rays of neighbouring pixels part ways there, and as packets they made
+    /// renders of `classic` and `cubes-10k` 6–7 % slower (`spheres-1k` 3 % faster),
+    /// while `mesh-100k`'s were 11 % faster.
+    pub fn occluded8(&self, rays: &[Ray; 8], active: u32, t_min: f64, t_max: [f64; 8]) -> u32 {
+        let from_view = rays.map(|r| self.viewpoint == Some(r.origin));
+        let test = |i: u32, lane: usize| {
+            let s = &self.solids[i as usize];
+            s.shape.occludes(
+                &s.object_ray(&rays[lane], from_view[lane]),
+                t_min,
+                t_max[lane],
+            )
+        };
+        let mut blocked = 0;
+        for &i in &self.unbounded {
+            blocked |= lanes_where(active & !blocked, |lane| test(i, lane));
+        }
+        let open = active & !blocked;
+        let Some(first) = lanes_of(open).next() else {
+            return blocked;
+        };
+        blocked
+            | match self.lone() {
+                Some(i) => {
+                    let s = &self.solids[i as usize];
+                    // Lanes without a ray carry the first one's, so that the packet's
+                    // test takes them (what they find is not asked).
+                    let object = std::array::from_fn(|k| {
+                        let lane = if open >> k & 1 == 1 { k } else { first };
+                        s.object_ray(&rays[lane], from_view[lane])
+                    });
+                    s.shape.occludes8(&object, open, t_min, t_max)
+                }
+                None => lanes_where(open, |lane| {
+                    self.bvh
+                        .any(&rays[lane], t_min, t_max[lane], |i| test(i, lane))
+                }),
+            }
+    }
+
+    /// Whether [`World::occluded8`] traces a packet's shadow rays together, not one
+    /// at a time: where the tree holds one object with a hierarchy of its own (a mesh,
+    /// beside planes or not).
+    pub fn traces_shadow_packets(&self) -> bool {
+        self.lone()
+            .is_some_and(|i| matches!(self.solids[i as usize].shape, Shape::Mesh(_)))
     }
 
     /// The object of a tree that holds one (a scene of one mesh, say): its own test is

@@ -157,11 +157,7 @@ impl Renderer {
         let hits = self
             .world
             .closest8(&primary, PRIMARY_LAMBDA_MIN, f64::INFINITY);
-        let mut out = [DVec3::ZERO; 8];
-        for k in 0..8 {
-            out[k] = shader.shade_as::<(), Lecture>(&primary[k], 0, hits[k], rays, &mut ());
-        }
-        Some(out)
+        Some(shader.shade8(&primary, hits, rays))
     }
 }
 

@@ -20,6 +20,7 @@
 
 use glam::DVec3;
 
+use crate::geometry::bounds::lanes_of;
 use crate::geometry::{Hit, Ray, Surface, World};
 use crate::scene::{Light, Material, Scene};
 
@@ -147,6 +148,19 @@ pub struct LightTerm {
 }
 
 impl LightTerm {
+    /// What the light adds where its shadow ray is not blocked.
+    #[inline(always)]
+    pub fn lit(&self) -> DVec3 {
+        self.diffuse + self.specular
+    }
+
+    /// Whether a shadow ray is cast: a light the point lies outside the cone of, or
+    /// that would add nothing, needs none.
+    #[inline(always)]
+    pub fn casts_shadow_ray(&self) -> bool {
+        !self.outside_cone && self.lit() != DVec3::ZERO
+    }
+
     /// The terms once the shadow ray's verdict is known: a blocked light adds nothing.
     #[inline]
     pub fn shadowed(mut self, blocked: bool) -> LightTerm {
@@ -344,6 +358,13 @@ impl ShadingProbe for () {
     fn secondary(&mut self, _branch: Branch, _total_internal_reflection: bool) {}
 }
 
+/// A hit ready to shade: its surface record, the normal facing the ray, its material.
+struct HitPoint<'a> {
+    s: Surface,
+    n: DVec3,
+    m: &'a Material,
+}
+
 /// A scene and its world, ready to shade rays.
 pub struct Shader<'a> {
     /// The scene.
@@ -402,20 +423,11 @@ impl Shader<'_> {
         let Some(hit) = closest else {
             return self.scene.background;
         };
-        let s = conventional_surface::<C>(self.world, self.world.surface(ray, &hit));
-        let m = &self.scene.materials[self.scene.objects[hit.object as usize].material as usize];
-        let n = facing_normal(&s, ray.dir);
-        let mut c = if C::AMBIENT {
-            self.scene.ambient * m.ambient
-        } else {
-            DVec3::ZERO
-        };
-        probe.surface(&hit, &s, n, m, c);
+        let (at, mut c) = self.hit_point_as::<C>(ray, &hit);
+        probe.surface(&hit, &at.s, at.n, at.m, c);
         for (k, light) in self.scene.lights.iter().enumerate() {
-            let t = light_term_as::<C>(light, &s, n, ray.dir, m);
-            let lit = t.diffuse + t.specular;
-            // A light that would add nothing needs no shadow ray.
-            if t.outside_cone || lit == DVec3::ZERO {
+            let t = light_term_as::<C>(light, &at.s, at.n, ray.dir, at.m);
+            if !t.casts_shadow_ray() {
                 probe.light(k, light, &t, None);
                 continue;
             }
@@ -428,9 +440,94 @@ impl Shader<'_> {
                         .occluded(&t.shadow_ray, SECONDARY_LAMBDA_MIN, t.shadow_t_max);
             probe.light(k, light, &t, Some(blocked));
             if !blocked {
-                c += lit;
+                c += t.lit();
             }
         }
+        self.add_secondaries_as::<P, C>(ray, depth, &at, c, rays, probe)
+    }
+
+    /// [`Shader::shade_as`] for eight primary rays (`depth` 0) and their first hits, under
+    /// the lecture's conventions with nothing recorded: each colour bit for bit, the
+    /// shadow rays toward each light traced together ([`World::occluded8`]), as the
+    /// primary rays were. Each pixel's terms are added in the order `shade_as` adds them.
+    ///
+    /// Where the world traces shadow rays one at a time anyway
+    /// ([`World::traces_shadow_packets`]), each pixel is shaded alone: gathering the
+    /// packet's terms cost 2–4 % more instructions there and saved nothing.
+    pub fn shade8(
+        &self,
+        primary: &[Ray; 8],
+        hits: [Option<Hit>; 8],
+        rays: &mut RayCount,
+    ) -> [DVec3; 8] {
+        if !self.world.traces_shadow_packets() {
+            return std::array::from_fn(|k| {
+                self.shade_as::<(), Lecture>(&primary[k], 0, hits[k], rays, &mut ())
+            });
+        }
+        rays.0 += 8;
+        let mut c = [self.scene.background; 8];
+        let at: [Option<HitPoint>; 8] = std::array::from_fn(|k| {
+            let (at, ambient) = self.hit_point_as::<Lecture>(&primary[k], &hits[k]?);
+            c[k] = ambient;
+            Some(at)
+        });
+        for light in &self.scene.lights {
+            let (mut shadow, mut t_max) = (*primary, [0.0; 8]);
+            let (mut lit, mut cast) = ([DVec3::ZERO; 8], 0u32);
+            for (k, at) in at.iter().enumerate() {
+                let Some(at) = at else { continue };
+                let t = light_term_as::<Lecture>(light, &at.s, at.n, primary[k].dir, at.m);
+                if t.casts_shadow_ray() {
+                    cast |= 1 << k;
+                    (shadow[k], t_max[k], lit[k]) = (t.shadow_ray, t.shadow_t_max, t.lit());
+                }
+            }
+            rays.0 += u64::from(cast.count_ones());
+            let blocked = self
+                .world
+                .occluded8(&shadow, cast, SECONDARY_LAMBDA_MIN, t_max);
+            for k in lanes_of(cast & !blocked) {
+                c[k] += lit[k];
+            }
+        }
+        for (k, at) in at.iter().enumerate() {
+            if let Some(at) = at {
+                c[k] =
+                    self.add_secondaries_as::<(), Lecture>(&primary[k], 0, at, c[k], rays, &mut ());
+            }
+        }
+        c
+    }
+
+    /// What shading a hit of `ray` starts from: its surface record under conventions
+    /// `C`, the normal facing the ray, its material; and the ambient term.
+    #[inline(always)]
+    fn hit_point_as<C: Conventions>(&self, ray: &Ray, hit: &Hit) -> (HitPoint<'_>, DVec3) {
+        let s = conventional_surface::<C>(self.world, self.world.surface(ray, hit));
+        let m = &self.scene.materials[self.scene.objects[hit.object as usize].material as usize];
+        let n = facing_normal(&s, ray.dir);
+        let ambient = if C::AMBIENT {
+            self.scene.ambient * m.ambient
+        } else {
+            DVec3::ZERO
+        };
+        (HitPoint { s, n, m }, ambient)
+    }
+
+    /// `c`, the colour of a hit of `ray` at `depth` so far, with what its secondary rays
+    /// add (none for a material without `mirror` or `transmission`, or at `max_depth`).
+    #[inline(always)]
+    fn add_secondaries_as<P: ShadingProbe, C: Conventions>(
+        &self,
+        ray: &Ray,
+        depth: u32,
+        at: &HitPoint,
+        mut c: DVec3,
+        rays: &mut RayCount,
+        probe: &mut P,
+    ) -> DVec3 {
+        let (s, n, m) = (&at.s, at.n, at.m);
         if m.mirror == DVec3::ZERO && m.transmission == DVec3::ZERO {
             probe.no_secondary(NoSecondary::Material);
         } else if if C::EXTRA_DEPTH == 0 {
@@ -442,13 +539,13 @@ impl Shader<'_> {
         } else {
             // Each ray is made only for a branch that is traced.
             if C::REFLECTION && m.mirror != DVec3::ZERO {
-                let next = reflected_ray(&s, n, ray.dir);
+                let next = reflected_ray(s, n, ray.dir);
                 let follow = (Branch::Reflection, false, m.mirror);
                 c += self.secondary_as::<P, C>(follow, &next, depth, rays, probe);
             }
             if C::REFRACTION && m.transmission != DVec3::ZERO {
-                let refracted = refracted_ray_as::<C>(&s, n, ray.dir, m.ior);
-                let next = refracted.unwrap_or_else(|| reflected_ray(&s, n, ray.dir));
+                let refracted = refracted_ray_as::<C>(s, n, ray.dir, m.ior);
+                let next = refracted.unwrap_or_else(|| reflected_ray(s, n, ray.dir));
                 let follow = (Branch::Refraction, refracted.is_none(), m.transmission);
                 c += self.secondary_as::<P, C>(follow, &next, depth, rays, probe);
             }

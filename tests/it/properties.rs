@@ -157,6 +157,9 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
             .unwrap()
             .push(height_field(16));
         let r = renderer(&doc);
+        // Shadow rays go as packets through the height field alone, one at a time
+        // through a tree of objects.
+        assert_eq!(r.world.traces_shadow_packets(), seed == 35);
         let (w, h) = (r.scene.width, r.scene.height);
         let mut hits = 0;
         for v in 0..h {
@@ -208,6 +211,19 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                     eight[k],
                     r.world.closest_brute_force(ray, 1e-9, f64::INFINITY)
                 );
+            }
+            // The same rays as shadow rays, some lanes asked, each to its own reach.
+            let active = (rng.0 % 255 + 1) as u32;
+            let reach = [0; 8].map(|_| match rng.next() {
+                x if x < 0.3 => f64::INFINITY,
+                x => 30.0 * x,
+            });
+            for packet in [rays, flat] {
+                let blocked = r.world.occluded8(&packet, active, 1e-9, reach);
+                for (k, ray) in packet.iter().enumerate() {
+                    let alone = active >> k & 1 == 1 && r.world.occluded(ray, 1e-9, reach[k]);
+                    assert_eq!(blocked >> k & 1 == 1, alone, "seed {seed} lane {k}");
+                }
             }
         }
     }

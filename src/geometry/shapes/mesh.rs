@@ -13,7 +13,7 @@ use glam::DVec3;
 
 use super::CanonicalShape;
 use crate::geometry::{
-    bounds::{Aabb, SlabRay, SlabRay4, lanes_of, per_lane},
+    bounds::{Aabb, SlabRay, SlabRay4, lanes_of, lanes_where, per_lane},
     bvh::Bvh,
     hit::{Probe, TriangleTest},
     ray::Ray,
@@ -157,6 +157,31 @@ impl CanonicalShape for Mesh {
     #[inline(always)]
     fn occludes(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
         self.accel().occludes(ray, t_min, t_max)
+    }
+
+    /// The rays of `active` traverse the triangles' BVH together (a lone ray goes on
+    /// its own), each occluded as [`MeshAccel::occludes`] finds it.
+    fn occludes8(&self, rays: &[Ray; 8], active: u32, t_min: f64, t_max: [f64; 8]) -> u32 {
+        let a = self.accel();
+        let slab = (active.count_ones() > 1)
+            .then(|| SlabRay4::pair(rays))
+            .flatten();
+        let Some(slab) = slab else {
+            return lanes_where(active, |lane| a.occludes(&rays[lane], t_min, t_max[lane]));
+        };
+        a.bvh.any8(
+            &slab,
+            t_min,
+            t_max,
+            active,
+            #[inline(always)]
+            |k, rays_in| {
+                let tri = &a.tris[k as usize];
+                lanes_where(rays_in, |lane| {
+                    moller_trumbore(tri, &rays[lane], t_min, t_max[lane], 0, &mut ()).is_some()
+                })
+            },
+        )
     }
 
     /// The geometric normal of triangle `part`, from its prepared edges (`e₁ × e₂`,

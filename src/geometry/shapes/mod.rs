@@ -41,7 +41,7 @@ use glam::DVec3;
 pub use mesh::Mesh;
 
 use super::{
-    bounds::{Aabb, per_lane},
+    bounds::{Aabb, lanes_where, per_lane},
     hit::{Face, Probe},
     ray::Ray,
     transform::Transform,
@@ -115,6 +115,17 @@ pub trait CanonicalShape {
     #[inline]
     fn occludes(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
         self.intersect(ray, t_min, t_max, &mut ()).is_some()
+    }
+
+    /// [`CanonicalShape::occludes`] for the rays of the bit set `active` (a packet of
+    /// shadow rays, in object space), each within `(t_min, t_max[lane])`: the bit set
+    /// of those occluded. By default one ray at a time; a mesh traverses its hierarchy
+    /// once for all of them, with the same answers.
+    #[inline]
+    fn occludes8(&self, rays: &[Ray; 8], active: u32, t_min: f64, t_max: [f64; 8]) -> u32 {
+        lanes_where(active, |lane| {
+            self.occludes(&rays[lane], t_min, t_max[lane])
+        })
     }
 
     /// The object-space normal, not normalised, at a point of a part: outward for a
@@ -279,6 +290,15 @@ macro_rules! shapes {
                 match self {
                     $( Shape::$P => <$PT as CanonicalShape>::occludes(&$PT, ray, t_min, t_max), )*
                     $( Shape::$D(s) => <$DT as CanonicalShape>::occludes(s, ray, t_min, t_max), )*
+                }
+            }
+
+            /// See [`CanonicalShape::occludes8`].
+            #[inline(always)]
+            pub fn occludes8(&self, rays: &[Ray; 8], active: u32, t_min: f64, t_max: [f64; 8]) -> u32 {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::occludes8(&$PT, rays, active, t_min, t_max), )*
+                    $( Shape::$D(s) => <$DT as CanonicalShape>::occludes8(s, rays, active, t_min, t_max), )*
                 }
             }
 
