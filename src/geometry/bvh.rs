@@ -130,18 +130,57 @@ struct BuildPrim {
     bounds: Aabb,
     centroid: DVec3,
     index: u32,
+    /// The SAH bin of the centroid, set while binning the node being split, so that
+    /// the partition does not compute it again (in what would be padding).
+    bin: u32,
+}
+
+/// One side of a split as the build needs it: the union of its primitives' boxes (the
+/// node's box) and of their centroids (what its own split bins).
+#[derive(Clone, Copy)]
+struct Side {
+    bounds: Aabb,
+    centroids: Aabb,
+}
+
+impl Side {
+    const EMPTY: Side = Side {
+        bounds: Aabb::EMPTY,
+        centroids: Aabb::EMPTY,
+    };
+
+    /// Both unions, in one pass over `prims`.
+    fn of(prims: &[BuildPrim]) -> Side {
+        prims.iter().fold(Side::EMPTY, |s, p| s.with(p))
+    }
+
+    /// The side with `p` added.
+    fn with(&self, p: &BuildPrim) -> Side {
+        Side {
+            bounds: self.bounds.union(&p.bounds),
+            centroids: self.centroids.grow(p.centroid),
+        }
+    }
+
+    /// The side holding both.
+    fn join(&self, o: &Side) -> Side {
+        Side {
+            bounds: self.bounds.union(&o.bounds),
+            centroids: self.centroids.union(&o.centroids),
+        }
+    }
 }
 
 /// Splits `prims` at the median centroid along `axis`, ties broken by index so the tree
 /// does not depend on the sort's order.
-fn median_split(prims: &mut [BuildPrim], axis: usize) -> (usize, usize) {
+fn median_split(prims: &mut [BuildPrim], axis: usize) -> usize {
     let mid = prims.len() / 2;
     prims.select_nth_unstable_by(mid, |a, b| {
         a.centroid[axis]
             .total_cmp(&b.centroid[axis])
             .then(a.index.cmp(&b.index))
     });
-    (axis, mid)
+    mid
 }
 
 impl Bvh {
@@ -173,12 +212,14 @@ impl Bvh {
                     bounds,
                     centroid: bounds.centroid(),
                     index: i as u32,
+                    bin: 0,
                 }
             })
             .collect();
         let built = if prims.is_empty() {
             Builder::default()
         } else {
+            let side = Side::of(&prims);
             Builder::subtree(
                 &mut prims,
                 0,
@@ -186,6 +227,7 @@ impl Bvh {
                     test_cost,
                     parallel_from,
                 },
+                side,
             )
         };
         let mut bvh = Bvh {
@@ -739,8 +781,8 @@ struct Builder {
 }
 
 impl Builder {
-    /// The tree over `prims`, its root at `depth`.
-    fn subtree(prims: &mut [BuildPrim], depth: usize, split: Split) -> Builder {
+    /// The tree over `prims`, its root at `depth`; `side` is [`Side::of`] them.
+    fn subtree(prims: &mut [BuildPrim], depth: usize, split: Split, side: Side) -> Builder {
         let mut b = Builder {
             // A binary tree of n leaves has 2n − 1 nodes, and a leaf holds at least one
             // primitive: reserved once, the vector is never copied to grow (reserved
@@ -749,7 +791,7 @@ impl Builder {
             order: Vec::with_capacity(prims.len()),
             split,
         };
-        b.build_node(prims, depth);
+        b.build_node(prims, depth, side);
         b
     }
 
@@ -764,19 +806,20 @@ impl Builder {
         self.order.extend(sub.order);
     }
 
-    fn build_node(&mut self, prims: &mut [BuildPrim], depth: usize) {
-        let bounds = prims.iter().fold(Aabb::EMPTY, |b, p| b.union(&p.bounds));
+    /// The node over `prims` and its subtrees; `side` is [`Side::of`] them, known from
+    /// the parent's binning where its split was the SAH's.
+    fn build_node(&mut self, prims: &mut [BuildPrim], depth: usize, side: Side) {
         let me = self.nodes.len();
         self.nodes.push(Node {
-            min: bounds.min,
-            max: bounds.max,
+            min: side.bounds.min,
+            max: side.bounds.max,
             offset: 0,
             count: 0,
         });
         let split = if prims.len() <= 1 {
             None
         } else {
-            self.choose_split(prims, &bounds, depth)
+            self.choose_split(prims, &side, depth)
         };
         match split {
             None => {
@@ -784,34 +827,36 @@ impl Builder {
                 self.nodes[me].count = prims.len() as u16;
                 self.order.extend(prims.iter().map(|p| p.index));
             }
-            Some((_axis, mid)) => {
+            Some((mid, sides)) => {
                 let parallel = prims.len() >= self.split.parallel_from;
                 let (left, right) = prims.split_at_mut(mid);
+                let [l, r] = sides.unwrap_or_else(|| [Side::of(left), Side::of(right)]);
                 if parallel {
                     let (l, r) = rayon::join(
-                        || Builder::subtree(left, depth + 1, self.split),
-                        || Builder::subtree(right, depth + 1, self.split),
+                        || Builder::subtree(left, depth + 1, self.split, l),
+                        || Builder::subtree(right, depth + 1, self.split, r),
                     );
                     self.append(l);
                     self.nodes[me].offset = self.nodes.len() as u32;
                     self.append(r);
                 } else {
-                    self.build_node(left, depth + 1);
+                    self.build_node(left, depth + 1, l);
                     self.nodes[me].offset = self.nodes.len() as u32;
-                    self.build_node(right, depth + 1);
+                    self.build_node(right, depth + 1, r);
                 }
             }
         }
     }
 
-    /// Partitions `prims` and returns the axis and the split index, or `None` for a leaf.
+    /// Partitions `prims` (of [`Side`] `side`) and returns the split index, with both
+    /// sides where the SAH's bins give them; `None` for a leaf.
     fn choose_split(
         &self,
         prims: &mut [BuildPrim],
-        bounds: &Aabb,
+        side: &Side,
         depth: usize,
-    ) -> Option<(usize, usize)> {
-        let cb = prims.iter().fold(Aabb::EMPTY, |b, p| b.grow(p.centroid));
+    ) -> Option<(usize, Option<[Side; 2]>)> {
+        let (bounds, cb) = (&side.bounds, &side.centroids);
         let extent = cb.max - cb.min;
         let axis = if extent.x >= extent.y && extent.x >= extent.z {
             0
@@ -826,23 +871,24 @@ impl Builder {
                 return None;
             }
             // All centroids coincide, or the tree is deep: split at the median index.
-            return Some(median_split(prims, axis));
+            return Some((median_split(prims, axis), None));
         }
         let bin_of = |c: f64| {
             (((c - cb.min[axis]) / extent[axis] * SAH_BINS as f64) as usize).min(SAH_BINS - 1)
         };
         let mut counts = [0usize; SAH_BINS];
-        let mut boxes = [Aabb::EMPTY; SAH_BINS];
-        for p in prims.iter() {
+        let mut bins = [Side::EMPTY; SAH_BINS];
+        for p in prims.iter_mut() {
             let b = bin_of(p.centroid[axis]);
+            p.bin = b as u32;
             counts[b] += 1;
-            boxes[b] = boxes[b].union(&p.bounds);
+            bins[b] = bins[b].with(p);
         }
         let mut right_area = [0.0; SAH_BINS];
         let (mut acc, mut acc_n) = (Aabb::EMPTY, 0);
         let mut right_n = [0usize; SAH_BINS];
         for i in (1..SAH_BINS).rev() {
-            acc = acc.union(&boxes[i]);
+            acc = acc.union(&bins[i].bounds);
             acc_n += counts[i];
             right_area[i] = acc.half_area();
             right_n[i] = acc_n;
@@ -850,7 +896,7 @@ impl Builder {
         let (mut best_cost, mut best_bin) = (f64::INFINITY, 0);
         let (mut left, mut left_n) = (Aabb::EMPTY, 0);
         for i in 1..SAH_BINS {
-            left = left.union(&boxes[i - 1]);
+            left = left.union(&bins[i - 1].bounds);
             left_n += counts[i - 1];
             if left_n == 0 || right_n[i] == 0 {
                 continue;
@@ -870,16 +916,20 @@ impl Builder {
             if n <= MAX_LEAF_PRIMS {
                 return None;
             }
-            return Some(median_split(prims, axis));
+            return Some((median_split(prims, axis), None));
         }
         let mut mid = 0;
         for i in 0..n {
-            if bin_of(prims[i].centroid[axis]) < best_bin {
+            if (prims[i].bin as usize) < best_bin {
                 prims.swap(i, mid);
                 mid += 1;
             }
         }
-        Some((axis, mid))
+        // Each side's unions are those of its bins: min and max are exact, so they are
+        // the unions over its primitives, whatever the order.
+        let union = |bins: &[Side]| bins.iter().fold(Side::EMPTY, |s, b| s.join(b));
+        let (below, above) = bins.split_at(best_bin);
+        Some((mid, Some([union(below), union(above)])))
     }
 }
 
@@ -916,7 +966,7 @@ mod tests {
     }
 
     #[test]
-    fn halves_built_in_parallel_give_the_tree_built_in_one_piece() {
+    fn node_boxes_hold_their_primitives_and_halves_built_in_parallel_give_one_tree() {
         // Clustered boxes of many sizes, so that the SAH, the median splits and
         // leaves of every size all occur.
         let mut state = 0x9e37_79b9_7f4a_7c15u64;
@@ -943,6 +993,7 @@ mod tests {
                     bounds: b.padded(),
                     centroid: b.padded().centroid(),
                     index: i as u32,
+                    bin: 0,
                 })
                 .collect()
         };
@@ -950,9 +1001,38 @@ mod tests {
             test_cost: 2.0,
             parallel_from,
         };
-        let whole = Builder::subtree(&mut prims(), 0, at(usize::MAX));
+        let build = |parallel_from| {
+            let mut p = prims();
+            let side = Side::of(&p);
+            Builder::subtree(&mut p, 0, at(parallel_from), side)
+        };
+        let whole = build(usize::MAX);
+        // Each node's box, carried down from its parent's bins, is the union of its
+        // primitives' boxes.
+        fn union_below(b: &Builder, node: usize, boxes: &[Aabb]) -> (Aabb, usize) {
+            let n = &b.nodes[node];
+            if n.count > 0 {
+                let leaf = &b.order[n.offset as usize..(n.offset + u32::from(n.count)) as usize];
+                let u = leaf
+                    .iter()
+                    .fold(Aabb::EMPTY, |u, &i| u.union(&boxes[i as usize].padded()));
+                return (u, node + 1);
+            }
+            let (first, end) = union_below(b, node + 1, boxes);
+            assert_eq!(end, n.offset as usize, "the second child follows the first");
+            let (second, end) = union_below(b, end, boxes);
+            (first.union(&second), end)
+        }
+        let mut checked = 0;
+        for node in 0..whole.nodes.len() {
+            let (u, _) = union_below(&whole, node, &boxes);
+            let n = &whole.nodes[node];
+            assert_eq!((n.min, n.max), (u.min, u.max), "node {node}");
+            checked += 1;
+        }
+        assert!(checked > 1000);
         for parallel_from in [2, 1000, PARALLEL_PRIMS] {
-            let split = Builder::subtree(&mut prims(), 0, at(parallel_from));
+            let split = build(parallel_from);
             assert_eq!(split.order, whole.order, "from {parallel_from}");
             assert_eq!(split.nodes.len(), whole.nodes.len());
             for (a, b) in split.nodes.iter().zip(&whole.nodes) {
