@@ -398,7 +398,9 @@ impl SlabRay4 {
     /// or some direction component, rounded to `f32`, is zero or of magnitude outside
     /// [10⁻³⁰, 10³⁰]: then every distance is a normal `f32` or an overflow to the
     /// right infinity, and no `0 · ∞` arises. Such rays are traced one at a time.
-    #[inline]
+    // Always inlined: returned through an `Option`, the prepared rays were copied by a
+    // call to `memcpy` after each call.
+    #[inline(always)]
     pub fn new(rays: &[Ray; 4]) -> Option<SlabRay4> {
         let mut d = [[0f32; 4]; 3];
         for (lane, r) in rays.iter().enumerate() {
@@ -436,7 +438,7 @@ impl SlabRay4 {
 
     /// Eight rays as two packets of four (the first four, the last four), or `None`
     /// where either half is refused ([`SlabRay4::new`]).
-    #[inline]
+    #[inline(always)]
     pub fn pair(rays: &[Ray; 8]) -> Option<[SlabRay4; 2]> {
         let (lo, hi) = halves(rays);
         Some([SlabRay4::new(lo)?, SlabRay4::new(hi)?])
