@@ -299,15 +299,20 @@ impl World {
         }
     }
 
+    /// Whether object `i` is hit in `(t_min, t_max)`; `from_view` says `ray` starts at
+    /// the viewpoint.
+    #[inline(always)]
+    fn occludes_object(&self, i: u32, ray: &Ray, from_view: bool, t_min: f64, t_max: f64) -> bool {
+        let s = &self.solids[i as usize];
+        s.shape
+            .occludes(&s.object_ray(ray, from_view), t_min, t_max)
+    }
+
     /// Whether anything is hit in `(t_min, t_max)` (shadow rays).
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
         let from_view = self.viewpoint == Some(ray.origin);
-        let test = |i: u32| {
-            let s = &self.solids[i as usize];
-            s.shape
-                .occludes(&s.object_ray(ray, from_view), t_min, t_max)
-        };
+        let test = |i: u32| self.occludes_object(i, ray, from_view, t_min, t_max);
         self.unbounded.iter().any(|&i| test(i))
             || match self.lone() {
                 Some(i) => test(i),
@@ -324,48 +329,45 @@ impl World {
     /// renders of `classic` and `cubes-10k` 6–7 % slower (`spheres-1k` 3 % faster),
     /// while `mesh-100k`'s were 11 % faster.
     pub fn occluded8(&self, rays: &[Ray; 8], active: u32, t_min: f64, t_max: [f64; 8]) -> u32 {
-        let from_view = rays.map(|r| self.viewpoint == Some(r.origin));
-        let test = |i: u32, lane: usize| {
-            let s = &self.solids[i as usize];
-            s.shape.occludes(
-                &s.object_ray(&rays[lane], from_view[lane]),
-                t_min,
-                t_max[lane],
-            )
+        let Some(mesh) = self.shadow_packet_object() else {
+            return lanes_where(active, |lane| {
+                self.occluded(&rays[lane], t_min, t_max[lane])
+            });
         };
+        let from_view = rays.map(|r| self.viewpoint == Some(r.origin));
         let mut blocked = 0;
         for &i in &self.unbounded {
-            blocked |= lanes_where(active & !blocked, |lane| test(i, lane));
+            blocked |= lanes_where(active & !blocked, |lane| {
+                self.occludes_object(i, &rays[lane], from_view[lane], t_min, t_max[lane])
+            });
         }
         let open = active & !blocked;
         let Some(first) = lanes_of(open).next() else {
             return blocked;
         };
-        blocked
-            | match self.lone() {
-                Some(i) => {
-                    let s = &self.solids[i as usize];
-                    // Lanes without a ray carry the first one's, so that the packet's
-                    // test takes them (what they find is not asked).
-                    let object = std::array::from_fn(|k| {
-                        let lane = if open >> k & 1 == 1 { k } else { first };
-                        s.object_ray(&rays[lane], from_view[lane])
-                    });
-                    s.shape.occludes8(&object, open, t_min, t_max)
-                }
-                None => lanes_where(open, |lane| {
-                    self.bvh
-                        .any(&rays[lane], t_min, t_max[lane], |i| test(i, lane))
-                }),
-            }
+        let s = &self.solids[mesh as usize];
+        // Lanes without a ray carry the first one's, so that the packet's test takes
+        // them (what they find is not asked).
+        let object = std::array::from_fn(|k| {
+            let lane = if open >> k & 1 == 1 { k } else { first };
+            s.object_ray(&rays[lane], from_view[lane])
+        });
+        blocked | s.shape.occludes8(&object, open, t_min, t_max)
     }
 
     /// Whether [`World::occluded8`] traces a packet's shadow rays together, not one
     /// at a time: where the tree holds one object with a hierarchy of its own (a mesh,
     /// beside planes or not).
     pub fn traces_shadow_packets(&self) -> bool {
+        self.shadow_packet_object().is_some()
+    }
+
+    /// The mesh that a packet's shadow rays traverse together, if the tree holds one
+    /// and nothing else.
+    #[inline(always)]
+    fn shadow_packet_object(&self) -> Option<u32> {
         self.lone()
-            .is_some_and(|i| matches!(self.solids[i as usize].shape, Shape::Mesh(_)))
+            .filter(|&i| matches!(self.solids[i as usize].shape, Shape::Mesh(_)))
     }
 
     /// The object of a tree that holds one (a scene of one mesh, say): its own test is

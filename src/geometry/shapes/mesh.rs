@@ -124,11 +124,7 @@ impl CanonicalShape for Mesh {
         t_max: [f64; 8],
     ) -> [Option<(f64, u32)>; 8] {
         let a = self.accel();
-        // A packet pays for more than one ray only.
-        let slab = (active.count_ones() > 1)
-            .then(|| SlabRay4::pair(rays))
-            .flatten();
-        let Some(slab) = slab else {
+        let Some(slab) = packet(rays, active) else {
             return per_lane(active, |lane| {
                 a.intersect(&rays[lane], t_min, t_max[lane], &mut ())
             });
@@ -163,10 +159,7 @@ impl CanonicalShape for Mesh {
     /// its own), each occluded as [`MeshAccel::occludes`] finds it.
     fn occludes8(&self, rays: &[Ray; 8], active: u32, t_min: f64, t_max: [f64; 8]) -> u32 {
         let a = self.accel();
-        let slab = (active.count_ones() > 1)
-            .then(|| SlabRay4::pair(rays))
-            .flatten();
-        let Some(slab) = slab else {
+        let Some(slab) = packet(rays, active) else {
             return lanes_where(active, |lane| a.occludes(&rays[lane], t_min, t_max[lane]));
         };
         a.bvh.any8(
@@ -289,6 +282,18 @@ impl MeshAccel {
             #[inline(always)]
             |k| moller_trumbore(&self.tris[k as usize], ray, t_min, t_max, 0, &mut ()).is_some(),
         )
+    }
+}
+
+/// The rays of `active` prepared as a packet for the triangles' BVH, or `None` where
+/// they go one at a time: a lone ray (a packet pays for more than one ray only), or
+/// rays the packet's test refuses ([`SlabRay4::new`]).
+#[inline(always)]
+fn packet(rays: &[Ray; 8], active: u32) -> Option<[SlabRay4; 2]> {
+    if active.count_ones() > 1 {
+        SlabRay4::pair(rays)
+    } else {
+        None
     }
 }
 
