@@ -311,13 +311,44 @@ impl World {
     /// Whether anything is hit in `(t_min, t_max)` (shadow rays).
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
+        self.occluded_hinted(ray, t_min, t_max, &mut None)
+    }
+
+    /// [`World::occluded`], object `hint` tested first, then set to the object found
+    /// to block the ray (`None` if nothing does). A shadow cache: the object that
+    /// blocked a neighbouring pixel's ray toward the same light most often blocks this
+    /// one too, and is then the only test. The answer is the same either way: an
+    /// object that blocks the ray is found whether or not it is tested first.
+    #[inline]
+    pub fn occluded_hinted(
+        &self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        hint: &mut Option<u32>,
+    ) -> bool {
         let from_view = self.viewpoint == Some(ray.origin);
         let test = |i: u32| self.occludes_object(i, ray, from_view, t_min, t_max);
-        self.unbounded.iter().any(|&i| test(i))
-            || match self.lone() {
-                Some(i) => test(i),
-                None => self.bvh.any(ray, t_min, t_max, test),
+        if let Some(i) = *hint
+            && test(i)
+        {
+            return true;
+        }
+        let mut found = None;
+        let mut blocks = |i: u32| {
+            let b = test(i);
+            if b {
+                found = Some(i);
             }
+            b
+        };
+        let blocked = self.unbounded.iter().any(|&i| blocks(i))
+            || match self.lone() {
+                Some(i) => blocks(i),
+                None => self.bvh.any(ray, t_min, t_max, &mut blocks),
+            };
+        *hint = found;
+        blocked
     }
 
     /// [`World::occluded`] for the shadow rays of `active` (lanes of a packet), each

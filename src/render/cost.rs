@@ -157,10 +157,7 @@ pub fn estimate(
     let budget = proof.min(PILOT_MAX_RAYS);
 
     let scene = &*r.scene;
-    let shader = Shader {
-        scene,
-        world: &r.world,
-    };
+    let shader = Shader::new(scene, &r.world);
     let seen = vec![Cell::new(false); scene.materials.len()];
     let mut probe = Branching {
         scene,

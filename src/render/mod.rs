@@ -60,10 +60,7 @@ impl Renderer {
 
     /// [`Renderer::pixel_colour`] traced under conventions `C`.
     pub fn pixel_colour_as<C: Conventions>(&self, u: u32, v: u32, rays: &mut RayCount) -> DVec3 {
-        let shader = Shader {
-            scene: &self.scene,
-            world: &self.world,
-        };
+        let shader = Shader::new(&self.scene, &self.world);
         let s = self.scene.samples;
         if s == 1 {
             let ray = self.camera.pixel_ray::<C>(u, v);
@@ -141,18 +138,27 @@ impl Renderer {
         );
     }
 
+    /// A shader of this scene for one thread's pixels, one after another: those of a
+    /// row given to it in order share its shadow hints ([`Shader::new`]).
+    pub fn shader(&self) -> Shader<'_> {
+        Shader::new(&self.scene, &self.world)
+    }
+
     /// [`Renderer::pixel_colour`] of pixels `(u, v)` to `(u + 7, v)` of a scene of one
-    /// sample a pixel, their primary rays traced as a packet: the same eight colours,
-    /// bit for bit. `None` for a scene of several samples a pixel.
+    /// sample a pixel, their primary rays traced as a packet and shaded by `shader`
+    /// (of [`Renderer::shader`]): the same eight colours, bit for bit. `None` for a
+    /// scene of several samples a pixel.
     #[inline]
-    pub fn pixel_colours8(&self, u: u32, v: u32, rays: &mut RayCount) -> Option<[DVec3; 8]> {
+    pub fn pixel_colours8(
+        &self,
+        shader: &Shader,
+        u: u32,
+        v: u32,
+        rays: &mut RayCount,
+    ) -> Option<[DVec3; 8]> {
         if self.scene.samples != 1 {
             return None;
         }
-        let shader = Shader {
-            scene: &self.scene,
-            world: &self.world,
-        };
         let primary = self.pixel_rays8(u, v);
         let hits = self
             .world
@@ -198,9 +204,10 @@ impl Kernel for ColourKernel<'_> {
     #[inline]
     fn row(&self, u: u32, v: u32, width: u32, rays: &mut u64, out: &mut Vec<[u8; 3]>) {
         let gamma = self.0.scene.gamma;
+        let shader = self.0.shader();
         row_in_packets(self, (u, v, width), rays, out, |x, rays, out| {
             let mut n = RayCount(0);
-            let Some(c) = self.0.pixel_colours8(x, v, &mut n) else {
+            let Some(c) = self.0.pixel_colours8(&shader, x, v, &mut n) else {
                 return false;
             };
             *rays += n.0;
@@ -227,9 +234,10 @@ impl Kernel for LinearKernel<'_> {
 
     #[inline]
     fn row(&self, u: u32, v: u32, width: u32, rays: &mut u64, out: &mut Vec<[f32; 3]>) {
+        let shader = self.0.shader();
         row_in_packets(self, (u, v, width), rays, out, |x, rays, out| {
             let mut n = RayCount(0);
-            let Some(c) = self.0.pixel_colours8(x, v, &mut n) else {
+            let Some(c) = self.0.pixel_colours8(&shader, x, v, &mut n) else {
                 return false;
             };
             *rays += n.0;

@@ -18,6 +18,8 @@
 //! renderer's [`Lecture`] is the specification, and diagnosing a submission renders the
 //! classic mistakes of the course with other instantiations (`crate::grade::diagnose`).
 
+use std::cell::Cell;
+
 use glam::DVec3;
 
 use crate::geometry::bounds::lanes_of;
@@ -365,12 +367,54 @@ struct HitPoint<'a> {
     m: &'a Material,
 }
 
-/// A scene and its world, ready to shade rays.
+/// Lights whose shadow rays keep a hint ([`World::occluded_hinted`]).
+const HINTED_LIGHTS: usize = 8;
+/// Recursion depths whose shadow rays keep their own hints.
+const HINTED_DEPTHS: usize = 3;
+
+/// A scene and its world, ready to shade rays, one pixel after another (one thread's).
 pub struct Shader<'a> {
     /// The scene.
     pub scene: &'a Scene,
     /// Its acceleration structure.
     pub world: &'a World,
+    /// `[depth][k]`: the object that blocked the last shadow ray toward light `k` from a
+    /// hit at recursion `depth`, if one did. Neighbouring pixels' rays toward a light
+    /// are mostly blocked by the same object: tested first, it is then the only test
+    /// (render instructions: `cubes-10k` −12 %, `spheres-1k` −6 %, `classic` −3 %).
+    /// Each depth keeps its own, so that a mirror's rays, shaded between two pixels'
+    /// primary hits, do not replace theirs.
+    shadow_hints: [[Cell<Option<u32>>; HINTED_LIGHTS]; HINTED_DEPTHS],
+}
+
+impl<'a> Shader<'a> {
+    /// A shader of `scene`, tracing through `world` (built from it). Pixels shaded by
+    /// one shader one after another, in order along a row, share its hints.
+    pub fn new(scene: &'a Scene, world: &'a World) -> Shader<'a> {
+        Shader {
+            scene,
+            world,
+            shadow_hints: Default::default(),
+        }
+    }
+
+    /// [`World::occluded`] of light `k`'s shadow ray `t` from a hit at `depth`, with
+    /// the hint this shader keeps for them, if it keeps one.
+    #[inline(always)]
+    fn light_blocked(&self, k: usize, depth: u32, t: &LightTerm) -> bool {
+        let (ray, t_max) = (&t.shadow_ray, t.shadow_t_max);
+        match self.shadow_hints.get(depth as usize).and_then(|h| h.get(k)) {
+            Some(hint) => {
+                let mut h = hint.get();
+                let blocked = self
+                    .world
+                    .occluded_hinted(ray, SECONDARY_LAMBDA_MIN, t_max, &mut h);
+                hint.set(h);
+                blocked
+            }
+            None => self.world.occluded(ray, SECONDARY_LAMBDA_MIN, t_max),
+        }
+    }
 }
 
 impl Shader<'_> {
@@ -434,10 +478,7 @@ impl Shader<'_> {
             rays.0 += C::SHADOWS as u64;
             let blocked = (C::SELF_SHADOWED_DEPTHS != 0
                 && (C::SELF_SHADOWED_DEPTHS >> depth.min(31)) & 1 == 1)
-                || C::SHADOWS
-                    && self
-                        .world
-                        .occluded(&t.shadow_ray, SECONDARY_LAMBDA_MIN, t.shadow_t_max);
+                || C::SHADOWS && self.light_blocked(k, depth, &t);
             probe.light(k, light, &t, Some(blocked));
             if !blocked {
                 c += t.lit();
@@ -632,10 +673,7 @@ mod tests {
         let path = format!("{}/scenes/showcase.json", env!("CARGO_MANIFEST_DIR"));
         let bytes = std::fs::read(path).unwrap();
         let r = Renderer::new(Arc::new(parse(&bytes, &Limits::NONE).unwrap()));
-        let shader = Shader {
-            scene: &r.scene,
-            world: &r.world,
-        };
+        let shader = Shader::new(&r.scene, &r.world);
         for v in (0..r.scene.height).step_by(37) {
             for u in (0..r.scene.width).step_by(37) {
                 let ray = r.camera.pixel_centre(u, v);

@@ -114,6 +114,21 @@ fn bvh_finds_the_same_hit_as_brute_force() {
                 shadow,
                 r.world.closest_brute_force(&ray, 1e-9, 1.0).is_some()
             );
+            // A hint, right or wrong, changes no answer; what it becomes blocks the ray.
+            let n = r.world.len() as u32;
+            let mut hint = (rng.next() < 0.8).then(|| ((rng.next() * n as f64) as u32).min(n - 1));
+            let given = hint;
+            assert_eq!(r.world.occluded_hinted(&ray, 1e-9, 1.0, &mut hint), shadow);
+            match hint {
+                None => assert!(!shadow, "a blocked ray names its blocker"),
+                Some(i) => {
+                    let alone = r.world.intersect_object(i, &ray, 1e-9, 1.0, &mut ());
+                    assert!(alone.is_some(), "hint {given:?} became {i}, which misses");
+                    // Given back, the blocker is the answer again, and stays.
+                    assert!(r.world.occluded_hinted(&ray, 1e-9, 1.0, &mut hint));
+                    assert_eq!(hint, Some(i));
+                }
+            }
         }
     }
 }
@@ -163,6 +178,9 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
         let (w, h) = (r.scene.width, r.scene.height);
         let mut hits = 0;
         for v in 0..h {
+            // One shader a row, as the renderer's: its shadow hints carry from packet
+            // to packet and change no colour.
+            let shader = r.shader();
             for u in (0..w - 7).step_by(8) {
                 let alone: Vec<_> = (u..u + 8).map(|x| r.pixel_hit(x, v)).collect();
                 let mut packet = Vec::new();
@@ -170,7 +188,9 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                 assert_eq!(packet, alone, "seed {seed} ({u}, {v})");
                 hits += alone.iter().flatten().count();
                 let mut n = raytile::render::RayCount(0);
-                let colours = r.pixel_colours8(u, v, &mut n).expect("one sample a pixel");
+                let colours = r
+                    .pixel_colours8(&shader, u, v, &mut n)
+                    .expect("one sample a pixel");
                 let mut m = raytile::render::RayCount(0);
                 let one: Vec<_> = (u..u + 8).map(|x| r.pixel_colour(x, v, &mut m)).collect();
                 assert_eq!(colours.to_vec(), one, "seed {seed} ({u}, {v})");

@@ -142,10 +142,7 @@ pub fn explain(r: &Renderer, u: u32, v: u32, opts: &ExplainOptions) -> Explanati
     let (x, y) = (u as f64 + 0.5, v as f64 + 0.5);
     let camera_ray = r.camera.camera_ray(x, y);
     let world_ray = r.camera.pixel_centre(u, v);
-    let shader = Shader {
-        scene,
-        world: &r.world,
-    };
+    let shader = Shader::new(scene, &r.world);
     let ex = Explainer::new(r, opts, mode);
     let mut recorder = Recorder::primary(&ex);
     let centre = shader.trace_probed(
@@ -354,10 +351,7 @@ mod tests {
     #[test]
     fn showcase_colours_match_the_renderer() {
         let r = renderer("showcase.json");
-        let shader = Shader {
-            scene: &r.scene,
-            world: &r.world,
-        };
+        let shader = Shader::new(&r.scene, &r.world);
         // Floor, mirror ball, glass ball, small ball, cube, column, cone, backdrop, gem, slab,
         // sky and corners.
         for (u, v) in [
@@ -395,10 +389,7 @@ mod tests {
     fn every_shape_explains_the_rendered_pixel() {
         for name in SHAPE_SCENES {
             let r = renderer(name);
-            let shader = Shader {
-                scene: &r.scene,
-                world: &r.world,
-            };
+            let shader = Shader::new(&r.scene, &r.world);
             for v in (0..r.scene.height).step_by(7) {
                 for u in (0..r.scene.width).step_by(7) {
                     let e = explain(&r, u, v, &ExplainOptions::default());
@@ -543,10 +534,7 @@ mod tests {
                 let at = t.budget_spent_at.as_ref().unwrap();
                 assert!(at.pointer.starts_with("/tree"), "{}", at.pointer);
                 assert!(t.tests_unlisted > 0 && t.rays_not_broken_down > 0);
-                let shader = Shader {
-                    scene: &r.scene,
-                    world: &r.world,
-                };
+                let shader = Shader::new(&r.scene, &r.world);
                 let centre = shader.trace(
                     &r.camera.pixel_centre(2, 2),
                     0,
