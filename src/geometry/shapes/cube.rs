@@ -35,6 +35,11 @@ impl CanonicalShape for Cube {
         intersect(ray, t_min, t_max, probe)
     }
 
+    #[inline(always)]
+    fn occludes(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
+        occludes(ray, t_min, t_max)
+    }
+
     fn normal(&self, _object_point: DVec3, part: u32) -> DVec3 {
         normal(part)
     }
@@ -59,22 +64,14 @@ impl CanonicalShape for Cube {
 /// a cube's test.
 #[inline]
 pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> Option<(f64, u32)> {
-    let (o, d) = (ray.origin, ray.dir);
-    // Lane `a` holds axis `a`, then its two others (`(a + 1) % 3`, `(a + 2) % 3`); the
-    // fourth lane is unused (a direction of 1 there keeps it finite).
-    let lanes = |x: f64, y: f64, z: f64, w: f64| f64x4::new([x, y, z, w]);
-    let (o_a, d_a) = (lanes(o.x, o.y, o.z, 0.0), lanes(d.x, d.y, d.z, 1.0));
-    let (o_j, d_j) = (lanes(o.y, o.z, o.x, 0.0), lanes(d.y, d.z, d.x, 0.0));
-    let (o_k, d_k) = (lanes(o.z, o.x, o.y, 0.0), lanes(d.z, d.x, d.y, 0.0));
-    let unit = |p: f64x4| p.simd_ge(f64x4::splat(-1.0)) & p.simd_le(f64x4::splat(1.0));
-    // For the faces of sign +1, then −1: `λ`, the point's other two coordinates, and
-    // whether they lie on the face.
-    let [plus, minus] = [1.0, -1.0].map(|sign| {
-        let t = (f64x4::splat(sign) - o_a) / d_a;
-        let pj = o_j + t * d_j;
-        let pk = o_k + t * d_k;
-        let within = (unit(pj) & unit(pk)).to_bitmask();
-        (t.to_array(), pj.to_array(), pk.to_array(), within)
+    let d = ray.dir;
+    let [plus, minus] = faces(ray).map(|(t, pj, pk, within)| {
+        (
+            t.to_array(),
+            pj.to_array(),
+            pk.to_array(),
+            within.to_bitmask(),
+        )
     });
     let mut best: Option<(f64, u32)> = None;
     let mut limit = t_max;
@@ -112,6 +109,42 @@ pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> 
         }
     }
     best
+}
+
+/// For the faces of sign +1, then −1, a lane an axis: `λ`, the point's other two
+/// coordinates, and whether they lie on the face. Lane `a` holds axis `a`, then its two
+/// others (`(a + 1) % 3`, `(a + 2) % 3`); the fourth lane is unused (a direction of 1
+/// there keeps it finite).
+#[inline(always)]
+fn faces(ray: &Ray) -> [(f64x4, f64x4, f64x4, f64x4); 2] {
+    let (o, d) = (ray.origin, ray.dir);
+    let lanes = |x: f64, y: f64, z: f64, w: f64| f64x4::new([x, y, z, w]);
+    let (o_a, d_a) = (lanes(o.x, o.y, o.z, 0.0), lanes(d.x, d.y, d.z, 1.0));
+    let (o_j, d_j) = (lanes(o.y, o.z, o.x, 0.0), lanes(d.y, d.z, d.x, 0.0));
+    let (o_k, d_k) = (lanes(o.z, o.x, o.y, 0.0), lanes(d.z, d.x, d.y, 0.0));
+    let unit = |p: f64x4| p.simd_ge(f64x4::splat(-1.0)) & p.simd_le(f64x4::splat(1.0));
+    [1.0, -1.0].map(|sign| {
+        let t = (f64x4::splat(sign) - o_a) / d_a;
+        let pj = o_j + t * d_j;
+        let pk = o_k + t * d_k;
+        (t, pj, pk, unit(pj) & unit(pk))
+    })
+}
+
+/// Whether [`intersect`] finds a face in `(t_min, t_max)`: whether some face that it
+/// does not skip as parallel has a valid `λ` there. The same lanes, without choosing
+/// the nearest face: for a shadow ray, any will do.
+#[inline]
+pub fn occludes(ray: &Ray, t_min: f64, t_max: f64) -> bool {
+    let d = ray.dir;
+    // The fourth lane's direction is 0: never a face.
+    let across = f64x4::new([d.x, d.y, d.z, 0.0])
+        .abs()
+        .simd_ge(f64x4::splat(PARALLEL_EPSILON));
+    let (lo, hi) = (f64x4::splat(t_min), f64x4::splat(t_max));
+    faces(ray)
+        .into_iter()
+        .any(|(t, _, _, within)| (within & across & t.simd_gt(lo) & t.simd_lt(hi)).any())
 }
 
 /// The face of a part index.
@@ -216,6 +249,12 @@ mod tests {
             let lanes = intersect(&ray, 1e-9, t_max, &mut ());
             let one_by_one = face_by_face(&ray, 1e-9, t_max);
             prop_assert_eq!(lanes.map(|(t, i)| (t.to_bits(), i)), one_by_one.map(|(t, i)| (t.to_bits(), i)));
+            // A shadow ray is blocked exactly when the full test finds a face: rays
+            // along a face, through edges and corners, ending on a face (`t_max`).
+            prop_assert_eq!(occludes(&ray, 1e-9, t_max), one_by_one.is_some());
+            if let Some((t, _)) = one_by_one {
+                prop_assert_eq!(occludes(&ray, 1e-9, t), intersect(&ray, 1e-9, t, &mut ()).is_some());
+            }
         }
     }
 
