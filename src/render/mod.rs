@@ -103,7 +103,11 @@ impl Renderer {
     /// The hit data of primary ray `ray`'s first hit `h`, under conventions `C`.
     #[inline]
     fn hit_record<C: Conventions>(&self, ray: &Ray, h: &Hit) -> Surface {
-        shade::conventional_hit::<C>(&self.world, ray, self.world.surface(ray, h))
+        shade::conventional_hit::<C>(
+            &self.scene.objects[h.object as usize].transform,
+            ray,
+            self.world.surface(ray, h),
+        )
     }
 }
 

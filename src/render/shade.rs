@@ -23,7 +23,7 @@ use std::cell::Cell;
 use glam::DVec3;
 
 use crate::geometry::bounds::lanes_of;
-use crate::geometry::{Hit, Ray, Surface, World};
+use crate::geometry::{Hit, Ray, Surface, Transform, World};
 use crate::scene::{Light, Material, Scene};
 
 /// Smallest `λ` of a secondary ray's hit.
@@ -83,13 +83,13 @@ impl Conventions for Lecture {}
 /// The hit's normal as a tracer of conventions `C` computes it: the world normal carried
 /// by `T` instead of `(T⁻¹)ᵀ`, or not normalised. `n_world ∝ (T⁻¹)ᵀ n_object` gives
 /// `n_object ∝ Tᵀ n_world`, so the object's normal is recovered from the surface record
-/// and nothing in the geometry's hot path changes.
+/// and nothing in the geometry's hot path changes. `t` is the hit object's
+/// `world_from_object`.
 #[inline(always)]
-pub fn conventional_surface<C: Conventions>(world: &World, s: Surface) -> Surface {
+pub fn conventional_surface<C: Conventions>(t: &Transform, s: Surface) -> Surface {
     if C::INVERSE_TRANSPOSE && C::NORMALISED {
         return s;
     }
-    let t = world.transform(s.object);
     let m = t.forward.matrix3;
     let n_object = m.transpose().mul_vec3(s.normal).normalize();
     let carried = if C::INVERSE_TRANSPOSE {
@@ -110,8 +110,8 @@ pub fn conventional_surface<C: Conventions>(world: &World, s: Surface) -> Surfac
 /// A primary ray's hit as hit data written under conventions `C` gives it: its normal as
 /// [`conventional_surface`] makes it, `λ` along `d/|d|` where `C` measures it so.
 #[inline(always)]
-pub fn conventional_hit<C: Conventions>(world: &World, ray: &Ray, s: Surface) -> Surface {
-    let s = conventional_surface::<C>(world, s);
+pub fn conventional_hit<C: Conventions>(t: &Transform, ray: &Ray, s: Surface) -> Surface {
+    let s = conventional_surface::<C>(t, s);
     if C::UNIT_DIRECTION_LAMBDA {
         Surface {
             lambda: s.lambda * ray.dir.length(),
@@ -545,8 +545,9 @@ impl Shader<'_> {
     /// `C`, the normal facing the ray, its material; and the ambient term.
     #[inline(always)]
     fn hit_point_as<C: Conventions>(&self, ray: &Ray, hit: &Hit) -> (HitPoint<'_>, DVec3) {
-        let s = conventional_surface::<C>(self.world, self.world.surface(ray, hit));
-        let m = &self.scene.materials[self.scene.objects[hit.object as usize].material as usize];
+        let object = &self.scene.objects[hit.object as usize];
+        let s = conventional_surface::<C>(&object.transform, self.world.surface(ray, hit));
+        let m = &self.scene.materials[object.material as usize];
         let n = facing_normal(&s, ray.dir);
         let ambient = if C::AMBIENT {
             self.scene.ambient * m.ambient

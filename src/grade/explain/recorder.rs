@@ -226,7 +226,7 @@ impl<'a> Explainer<'a> {
         let result = world.intersect_object(i, ray, t_min, f64::INFINITY, &mut rec);
         let object_ray = rec
             .object_ray
-            .unwrap_or_else(|| ray.transformed(&world.transform(i).inverse));
+            .unwrap_or_else(|| ray.transformed(&object.transform.inverse));
         let hit_part = result.map(|(_, p)| part_label(shape, p));
         let side_hit = result.filter(|&(_, p)| p == 0).map(|(t, _)| t);
         let bounded_height = shape.bounded_quadric();
@@ -329,7 +329,7 @@ impl<'a> Explainer<'a> {
             object: i,
             name: object.name.clone(),
             shape: shape.name(),
-            inverse_transform: world.transform(i).inverse_rows(),
+            inverse_transform: object.transform.inverse_rows(),
             object_ray: (&object_ray).into(),
             quadratics,
             faces,
