@@ -14,7 +14,7 @@ use super::{
     bvh::Bvh,
     hit::{Hit, Probe, Surface},
     ray::Ray,
-    shapes::Shape,
+    shapes::{Shape, plane},
     transform::Transform,
 };
 
@@ -48,6 +48,20 @@ impl Solid {
         } else {
             ray.transformed(&self.object_from_world)
         }
+    }
+
+    /// The y components of [`Solid::object_ray`]'s origin and direction, computed
+    /// alone in the same order (so bit for bit the same): all a plane's test reads.
+    #[inline(always)]
+    fn object_y(&self, ray: &Ray, from_view: bool) -> (f64, f64) {
+        let m = &self.object_from_world.matrix3;
+        let y = |v: DVec3| m.x_axis.y * v.x + m.y_axis.y * v.y + m.z_axis.y * v.z;
+        let origin = if from_view {
+            self.view_origin.y
+        } else {
+            y(ray.origin) + self.object_from_world.translation.y
+        };
+        (origin, y(ray.dir))
     }
 }
 
@@ -183,6 +197,27 @@ impl World {
         s.shape.intersect(&r, t_min, t_max, probe)
     }
 
+    /// [`World::intersect_object_from`] for an unbounded object, which every ray meets:
+    /// a plane's test from the ray's height alone (a third of carrying the whole ray
+    /// into its space), unless a probe wants the object's ray.
+    #[inline(always)]
+    fn intersect_unbounded<P: Probe>(
+        &self,
+        i: u32,
+        ray: &Ray,
+        from_view: bool,
+        t_min: f64,
+        t_max: f64,
+        probe: &mut P,
+    ) -> Option<(f64, u32)> {
+        let s = &self.solids[i as usize];
+        if matches!(s.shape, Shape::Plane) && !probe.active() {
+            let (y0, dy) = s.object_y(ray, from_view);
+            return plane::lambda_from_y(y0, dy, t_min, t_max).map(|t| (t, 0));
+        }
+        self.intersect_object_from(i, ray, from_view, t_min, t_max, probe)
+    }
+
     /// The first hit in `(t_min, t_max)`; ties go to the object listed first.
     #[inline]
     pub fn closest(&self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
@@ -200,16 +235,17 @@ impl World {
     ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let from_view = self.viewpoint == Some(ray.origin);
+        let mut limit = t_max;
+        // `next_up` lets an equal λ through, so the tie rule can see it.
+        for &i in &self.unbounded {
+            let found = self.intersect_unbounded(i, ray, from_view, t_min, limit.next_up(), probe);
+            limit = keep_first(&mut best, i, found, limit);
+        }
         let mut consider = |i: u32, limit: f64, probe: &mut P| -> f64 {
-            // `next_up` lets an equal λ through, so the tie rule can see it.
             let found =
                 self.intersect_object_from(i, ray, from_view, t_min, limit.next_up(), probe);
             keep_first(&mut best, i, found, limit)
         };
-        let mut limit = t_max;
-        for &i in &self.unbounded {
-            limit = consider(i, limit, probe);
-        }
         let slab = SlabRay::new(ray.origin, ray.dir);
         self.bvh
             .closest(&slab, t_min, limit, |i, limit| consider(i, limit, probe));
@@ -236,7 +272,11 @@ impl World {
         let mut best: [Option<Hit>; 8] = [None; 8];
         let mut limit = [t_max; 8];
         for &i in &self.unbounded {
-            self.consider8(i, rays, from_view, t_min, 0xff, &mut limit, &mut best);
+            for lane in 0..8 {
+                let (r, below) = (&rays[lane], limit[lane].next_up());
+                let found = self.intersect_unbounded(i, r, from_view[lane], t_min, below, &mut ());
+                limit[lane] = keep_first(&mut best[lane], i, found, limit[lane]);
+            }
         }
         if let Some(i) = lone {
             self.consider8(i, rays, from_view, t_min, 0xff, &mut limit, &mut best);
@@ -319,6 +359,14 @@ impl World {
         {
             return true;
         }
+        let plane = self.unbounded.iter().copied().find(|&i| {
+            self.intersect_unbounded(i, ray, from_view, t_min, t_max, &mut ())
+                .is_some()
+        });
+        if plane.is_some() {
+            *hint = plane;
+            return true;
+        }
         let mut found = None;
         let mut blocks = |i: u32| {
             let b = test(i);
@@ -327,11 +375,10 @@ impl World {
             }
             b
         };
-        let blocked = self.unbounded.iter().any(|&i| blocks(i))
-            || match self.lone() {
-                Some(i) => blocks(i),
-                None => self.bvh.any(ray, t_min, t_max, &mut blocks),
-            };
+        let blocked = match self.lone() {
+            Some(i) => blocks(i),
+            None => self.bvh.any(ray, t_min, t_max, &mut blocks),
+        };
         *hint = found;
         blocked
     }
@@ -354,7 +401,9 @@ impl World {
         let mut blocked = 0;
         for &i in &self.unbounded {
             blocked |= lanes_where(active & !blocked, |lane| {
-                self.occludes_object(i, &rays[lane], from_view[lane], t_min, t_max[lane])
+                let r = &rays[lane];
+                self.intersect_unbounded(i, r, from_view[lane], t_min, t_max[lane], &mut ())
+                    .is_some()
             });
         }
         let open = active & !blocked;
@@ -454,3 +503,46 @@ impl World {
 
 /// A shared handle, as renders hold it.
 pub type SharedWorld = Arc<World>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// A plane's test reads the object ray's y components computed alone: they must
+        /// be the whole ray's, bit for bit, under any placement and from any origin.
+        #[test]
+        fn a_rays_height_alone_is_the_whole_rays(
+            scale in prop::array::uniform3(0.1f64..5.0),
+            axis in prop::array::uniform3(-1.0f64..1.0),
+            degrees in 0.0f64..360.0,
+            shift in prop::array::uniform3(-50.0f64..50.0),
+            o in prop::array::uniform3(-20.0f64..20.0),
+            d in prop::array::uniform3(-1.0f64..1.0),
+            t_max in prop_oneof![Just(f64::INFINITY), 0.0f64..40.0],
+        ) {
+            let axis = DVec3::from(axis);
+            prop_assume!(axis.length() > 1e-3);
+            let t = Transform::scale(scale.into())
+                .then(&Transform::rotate(axis, degrees))
+                .then(&Transform::translate(shift.into()));
+            let ray = Ray::new(o.into(), d.into());
+            let mut world = World::new([(&Shape::Plane, &t)]);
+            for view in [None, Some(ray.origin)] {
+                if let Some(v) = view {
+                    world.set_viewpoint(v);
+                }
+                let s = &world.solids[0];
+                let from_view = view.is_some();
+                let whole = s.object_ray(&ray, from_view);
+                let (y0, dy) = s.object_y(&ray, from_view);
+                prop_assert_eq!((y0.to_bits(), dy.to_bits()), (whole.origin.y.to_bits(), whole.dir.y.to_bits()));
+                // And the world's answers are the shape's own.
+                let own = world.closest_brute_force(&ray, 1e-9, t_max);
+                prop_assert_eq!(world.closest(&ray, 1e-9, t_max), own);
+                prop_assert_eq!(world.occluded(&ray, 1e-9, t_max), own.is_some());
+            }
+        }
+    }
+}

@@ -60,7 +60,7 @@ pub(crate) fn intersect_y0<P: Probe>(
         }
         return None;
     }
-    let t = (height - ray.origin.y) / ray.dir.y;
+    let t = crossing(height, ray.origin.y, ray.dir.y);
     let x = ray.origin.x + t * ray.dir.x;
     let z = ray.origin.z + t * ray.dir.z;
     let within = radius2 == f64::INFINITY || x * x + z * z <= radius2;
@@ -73,6 +73,24 @@ pub(crate) fn intersect_y0<P: Probe>(
         });
     }
     (within && t > t_min && t < t_max).then_some(t)
+}
+
+/// Where a ray at height `y0` climbing `dy` per unit `λ` crosses `y = height`.
+#[inline(always)]
+fn crossing(height: f64, y0: f64, dy: f64) -> f64 {
+    (height - y0) / dy
+}
+
+/// The plane's hit `λ` in `(t_min, t_max)` from the ray's `y₀` and `Δy` alone: what
+/// [`intersect`] finds, for a caller that has not computed the ray's other
+/// components (a world's planes, tested by every ray).
+#[inline(always)]
+pub fn lambda_from_y(y0: f64, dy: f64, t_min: f64, t_max: f64) -> Option<f64> {
+    if dy.abs() < PARALLEL_EPSILON {
+        return None;
+    }
+    let t = crossing(0.0, y0, dy);
+    (t > t_min && t < t_max).then_some(t)
 }
 
 /// The plane's hit `λ` in `(t_min, t_max)`.
@@ -94,6 +112,24 @@ mod tests {
         assert_eq!(intersect(&down, 1e-9, f64::INFINITY, &mut ()), Some(2.0));
         let up = Ray::new(DVec3::new(0.0, -4.0, 0.0), DVec3::new(1.0, 2.0, 0.0));
         assert_eq!(intersect(&up, 1e-9, f64::INFINITY, &mut ()), Some(2.0));
+    }
+
+    use proptest::prelude::*;
+
+    proptest! {
+        #[test]
+        fn the_height_alone_gives_the_whole_rays_lambda(
+            o in prop::array::uniform3(-5.0f64..5.0),
+            y0 in prop_oneof![Just(0.0), Just(-0.0), -5.0f64..5.0],
+            d in prop::array::uniform3(-1.0f64..1.0),
+            dy in prop_oneof![Just(0.0), Just(1e-13), Just(-2e-12), -1.0f64..1.0],
+            t_max in prop_oneof![Just(f64::INFINITY), 0.0f64..8.0],
+        ) {
+            let r = Ray::new(DVec3::new(o[0], y0, o[2]), DVec3::new(d[0], dy, d[2]));
+            let whole = intersect(&r, 1e-9, t_max, &mut ());
+            let alone = lambda_from_y(y0, dy, 1e-9, t_max);
+            prop_assert_eq!(whole.map(f64::to_bits), alone.map(f64::to_bits));
+        }
     }
 
     #[test]
