@@ -252,7 +252,14 @@ pub fn light_term_as<C: Conventions>(
         } else {
             r_dot_v
         };
-        term.specular = colour * m.specular * cosine.max(0.0).powf(m.shininess);
+        // Where `r·v < 0` the power is of +0, which is +0 for any shininess above 0:
+        // about half the terms, spared their call to `pow`.
+        let highlight = if cosine < 0.0 && m.shininess > 0.0 {
+            0.0
+        } else {
+            cosine.max(0.0).powf(m.shininess)
+        };
+        term.specular = colour * m.specular * highlight;
     }
     term
 }
@@ -711,6 +718,59 @@ mod tests {
             assert_eq!(round_half_up_u8(y), y.round() as u8, "{y:e}");
         }
         assert_eq!(round_half_up_u8(f64::NAN), f64::NAN.round() as u8);
+    }
+
+    /// A light's specular term where `r·v < 0` is +0 for a shininess above 0 and the
+    /// whole `L.colour ⊙ m.specular` for a shininess of 0 (`0⁰ = 1`); where `r·v > 0`
+    /// it is `(r·v)^shininess`.
+    #[test]
+    fn the_specular_term_is_the_power_of_max_0_r_dot_v() {
+        let s = Surface {
+            lambda: 1.0,
+            object: 0,
+            point: DVec3::ZERO,
+            object_point: DVec3::ZERO,
+            normal: DVec3::Y,
+            front: true,
+            face: None,
+        };
+        let colour = DVec3::new(0.8, 0.6, 0.4);
+        let light = Light::Point {
+            position: DVec3::new(1.0, 1.0, 0.0),
+            colour,
+        };
+        let material = |shininess| Material {
+            ambient: DVec3::ZERO,
+            diffuse: DVec3::splat(0.5),
+            specular: DVec3::new(0.9, 0.5, 0.25),
+            shininess,
+            mirror: DVec3::ZERO,
+            transmission: DVec3::ZERO,
+            ior: 1.5,
+        };
+        // The light's mirror image about the normal points to −x: a view from +x sees
+        // no highlight, one from −x does.
+        let away = DVec3::new(-1.0, -0.2, 0.0);
+        let toward = DVec3::new(1.0, -0.2, 0.0);
+        for shininess in [0.0, 0.5, 1.0, 32.0, 200.0] {
+            let m = material(shininess);
+            let t = light_term_as::<Lecture>(&light, &s, s.normal, away, &m);
+            assert!(t.r_dot_v < 0.0);
+            let want = if shininess == 0.0 {
+                colour * m.specular
+            } else {
+                DVec3::ZERO
+            };
+            assert_eq!(
+                t.specular.to_array().map(f64::to_bits),
+                want.to_array().map(f64::to_bits),
+                "shininess {shininess}"
+            );
+            let t = light_term_as::<Lecture>(&light, &s, s.normal, toward, &m);
+            assert!(t.r_dot_v > 0.0);
+            assert_eq!(t.specular, colour * m.specular * t.r_dot_v.powf(shininess));
+            assert!(t.specular.min_element() > 0.0);
+        }
     }
 
     #[test]
