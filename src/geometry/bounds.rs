@@ -271,15 +271,15 @@ impl BoxPair32 {
 /// [`SlabRay4::enter`] give, bit for bit, so the traversal is the same whichever runs.
 pub trait PairTest {
     /// [`SlabRay4::enter`] for each child of `b`, each ray within `[t_min, t_max]`
-    /// of its lane (`t_max` rounded to the nearest `f32`, as [`lanes`] does).
-    fn enter_pair(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 4]) -> [(u32, f32x4); 2];
+    /// of its lane (`t_max` rounded to the nearest `f32`, as [`lanes`] rounds it).
+    fn enter_pair(&self, b: &BoxPair32, t_min: f32, t_max: f32x4) -> [(u32, f32x4); 2];
 }
 
 impl PairTest for SlabRay4 {
     #[inline(always)]
-    fn enter_pair(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 4]) -> [(u32, f32x4); 2] {
-        let (t_min, limit) = (f32x4::splat(t_min), lanes(t_max));
-        [0, 1].map(|c| self.enter(&b.child(c), t_min, limit))
+    fn enter_pair(&self, b: &BoxPair32, t_min: f32, t_max: f32x4) -> [(u32, f32x4); 2] {
+        let t_min = f32x4::splat(t_min);
+        [0, 1].map(|c| self.enter(&b.child(c), t_min, t_max))
     }
 }
 
@@ -290,14 +290,15 @@ impl PairTest for SlabRay4 {
 /// bit: bit `r` of child `c`'s mask where ray `r` enters it, and its entry `λ` in lane
 /// `r`.
 pub trait PairTest8 {
-    /// [`PairTest::enter_pair`] for the eight rays.
-    fn enter_pair8(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 8]) -> [(u32, f32x8); 2];
+    /// [`PairTest::enter_pair`] for the eight rays, their limits rounded as [`lanes8`]
+    /// rounds them.
+    fn enter_pair8(&self, b: &BoxPair32, t_min: f32, t_max: f32x8) -> [(u32, f32x8); 2];
 }
 
 impl<P: PairTest> PairTest8 for [P; 2] {
     #[inline(always)]
-    fn enter_pair8(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 8]) -> [(u32, f32x8); 2] {
-        let (lo, hi) = halves(t_max);
+    fn enter_pair8(&self, b: &BoxPair32, t_min: f32, t_max: f32x8) -> [(u32, f32x8); 2] {
+        let [lo, hi]: [f32x4; 2] = bytemuck::cast(t_max);
         let (lo, hi) = (
             self[0].enter_pair(b, t_min, lo),
             self[1].enter_pair(b, t_min, hi),
@@ -315,12 +316,12 @@ pub fn halves<T>(x: &[T; 8]) -> (&[T; 4], &[T; 4]) {
 }
 
 /// The lanes of eight rays whose entry `λ` (as [`PairTest8::enter_pair8`] gives it) is
-/// at most their `t_max` (rounded to the nearest `f32`), rounding forgiven: a traversal
-/// pops a subtree only for rays that may still find something nearer, or tied, in it.
+/// at most their `t_max` (rounded to the nearest `f32`, as [`lanes8`] rounds it),
+/// rounding forgiven: a traversal pops a subtree only for rays that may still find
+/// something nearer, or tied, in it.
 #[inline(always)]
-pub fn within8(near: f32x8, t_max: &[f64; 8]) -> u32 {
-    near.simd_le(f32x8::new(t_max.map(|x| x as f32)) * f32x8::splat(GROW))
-        .to_bitmask()
+pub fn within8(near: f32x8, t_max: f32x8) -> u32 {
+    near.simd_le(t_max * f32x8::splat(GROW)).to_bitmask()
 }
 
 /// The largest `f32` at most `x`, for `x` within `f32`'s finite range.
@@ -544,6 +545,12 @@ pub fn lanes(t: &[f64; 4]) -> f32x4 {
     f32x4::new(t.map(|x| x as f32))
 }
 
+/// [`lanes`] for eight limits.
+#[inline(always)]
+pub fn lanes8(t: &[f64; 8]) -> f32x8 {
+    f32x8::new(t.map(|x| x as f32))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -666,7 +673,7 @@ mod tests {
         assert_eq!(
             within8(
                 f32x8::splat(2.0),
-                &[1.0, 2.0, 3.0, 1.999_999_9, 1.0, 2.0, 3.0, 1.999_999_9]
+                lanes8(&[1.0, 2.0, 3.0, 1.999_999_9, 1.0, 2.0, 3.0, 1.999_999_9])
             ),
             0b1110_1110
         );

@@ -17,7 +17,8 @@ use rayon::prelude::*;
 #[cfg(target_arch = "x86_64")]
 use super::bounds::x86::{Avx2, Avx512};
 use super::bounds::{
-    Aabb, Box32, BoxPair32, PairTest8, SlabRay, SlabRay4, box32, halves, lanes, lanes_of, within8,
+    Aabb, Box32, BoxPair32, PairTest8, SlabRay, SlabRay4, box32, halves, lanes, lanes_of, lanes8,
+    within8,
 };
 use super::ray::Ray;
 use wide::{f32x4, f32x8};
@@ -560,6 +561,9 @@ impl Bvh {
         if mask == 0 {
             return;
         }
+        // The limits as the box tests read them, rounded again only when a leaf may
+        // have lowered them, not at every node.
+        let mut limits = lanes8(t_max);
         // (subtree, its rays, their entry λ).
         let mut stack: ArrayVec<(u32, u32, f32x8), STACK_SIZE> = ArrayVec::new();
         let mut cur = self.root;
@@ -569,9 +573,10 @@ impl Bvh {
                 for &p in &self.order[start as usize..(start + count) as usize] {
                     leaf(p, mask, t_max);
                 }
+                limits = lanes8(t_max);
             } else {
                 let n = &self.packet[cur as usize];
-                let [(m0, near0), (m1, near1)] = pairs.enter_pair8(&n.boxes, t_min, t_max);
+                let [(m0, near0), (m1, near1)] = pairs.enter_pair8(&n.boxes, t_min, limits);
                 let (m0, m1) = (m0 & mask, m1 & mask);
                 if m0 != 0 && m1 != 0 {
                     // The nearer child first, as the first ray that enters both sees it.
@@ -606,7 +611,7 @@ impl Bvh {
                 let Some((node, m, near)) = stack.pop() else {
                     return;
                 };
-                let m = m & within8(near, t_max);
+                let m = m & within8(near, limits);
                 if m != 0 {
                     cur = node;
                     mask = m;

@@ -83,10 +83,9 @@ impl SlabRay8 {
     /// [`PairTest::enter_pair`], in AVX2.
     #[inline]
     #[target_feature(enable = "avx2")]
-    fn enter_pair_avx2(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 4]) -> [(u32, f32x4); 2] {
+    fn enter_pair_avx2(&self, b: &BoxPair32, t_min: f32, t_max: f32x4) -> [(u32, f32x4); 2] {
         let mut near = _mm256_set1_ps(t_min);
-        let [t0, t1, t2, t3] = *t_max;
-        let mut far = twice(_mm256_cvtpd_ps(_mm256_setr_pd(t0, t1, t2, t3)));
+        let mut far = twice(bytemuck::cast(t_max));
         for a in 0..3 {
             let t0 = _mm256_mul_ps(_mm256_sub_ps(pair(&b.min[a]), self.o_up[a]), self.inv[a]);
             let t1 = _mm256_mul_ps(_mm256_sub_ps(pair(&b.max[a]), self.o_down[a]), self.inv[a]);
@@ -108,7 +107,7 @@ impl SlabRay8 {
 
 impl PairTest for SlabRay8 {
     #[inline(always)]
-    fn enter_pair(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 4]) -> [(u32, f32x4); 2] {
+    fn enter_pair(&self, b: &BoxPair32, t_min: f32, t_max: f32x4) -> [(u32, f32x4); 2] {
         // SAFETY: a `SlabRay8` exists only where the processor has AVX2 (`Avx2`).
         unsafe { self.enter_pair_avx2(b, t_min, t_max) }
     }
@@ -166,11 +165,9 @@ impl SlabRay16 {
     /// [`PairTest8::enter_pair8`], in AVX-512.
     #[inline]
     #[target_feature(enable = "avx512f,avx2")]
-    fn enter_pair16(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 8]) -> [(u32, f32x8); 2] {
+    fn enter_pair16(&self, b: &BoxPair32, t_min: f32, t_max: f32x8) -> [(u32, f32x8); 2] {
         let mut near = _mm512_set1_ps(t_min);
-        let [t0, t1, t2, t3, t4, t5, t6, t7] = *t_max;
-        let far = _mm512_setr_pd(t0, t1, t2, t3, t4, t5, t6, t7);
-        let mut far = twice16(_mm512_cvtpd_ps(far));
+        let mut far = twice16(bytemuck::cast(t_max));
         for a in 0..3 {
             let t0 = _mm512_mul_ps(_mm512_sub_ps(pair16(&b.min[a]), self.o_up[a]), self.inv[a]);
             let t1 = _mm512_mul_ps(
@@ -197,7 +194,7 @@ impl SlabRay16 {
 
 impl PairTest8 for SlabRay16 {
     #[inline(always)]
-    fn enter_pair8(&self, b: &BoxPair32, t_min: f32, t_max: &[f64; 8]) -> [(u32, f32x8); 2] {
+    fn enter_pair8(&self, b: &BoxPair32, t_min: f32, t_max: f32x8) -> [(u32, f32x8); 2] {
         // SAFETY: a `SlabRay16` exists only where the processor has AVX-512 (`Avx512`).
         unsafe { self.enter_pair16(b, t_min, t_max) }
     }
@@ -243,7 +240,7 @@ fn pair(p: &[f32; 2]) -> __m256 {
 mod tests {
     use super::*;
     use crate::geometry::Ray;
-    use crate::geometry::bounds::{Aabb, lanes};
+    use crate::geometry::bounds::{Aabb, lanes, lanes8};
     use glam::DVec3;
     use proptest::prelude::*;
 
@@ -296,8 +293,8 @@ mod tests {
                 return Ok(());
             };
             let pair = BoxPair32::new(&a, &b);
-            let wide = avx512.widen(&four).enter_pair8(&pair, t_min as f32, &t_max);
-            let narrow = four.enter_pair8(&pair, t_min as f32, &t_max);
+            let wide = avx512.widen(&four).enter_pair8(&pair, t_min as f32, lanes8(&t_max));
+            let narrow = four.enter_pair8(&pair, t_min as f32, lanes8(&t_max));
             for c in 0..2 {
                 prop_assert_eq!(wide[c].0, narrow[c].0, "child {}", c);
                 prop_assert_eq!(
@@ -309,7 +306,7 @@ mod tests {
             // And each half is `enter_pair`'s for its four rays.
             let (t_lo, t_hi) = super::super::halves(&t_max);
             for (h, t) in [t_lo, t_hi].into_iter().enumerate() {
-                let half = four[h].enter_pair(&pair, t_min as f32, t);
+                let half = four[h].enter_pair(&pair, t_min as f32, lanes(t));
                 for c in 0..2 {
                     prop_assert_eq!((narrow[c].0 >> (4 * h)) & 0b1111, half[c].0);
                     prop_assert_eq!(
@@ -341,8 +338,8 @@ mod tests {
             };
             let eight = avx2.widen(&four);
             let pair = BoxPair32::new(&a, &b);
-            let wide = eight.enter_pair(&pair, t_min as f32, &t_max);
-            let narrow = four.enter_pair(&pair, t_min as f32, &t_max);
+            let wide = eight.enter_pair(&pair, t_min as f32, lanes(&t_max));
+            let narrow = four.enter_pair(&pair, t_min as f32, lanes(&t_max));
             for c in 0..2 {
                 prop_assert_eq!(wide[c].0, narrow[c].0, "child {}", c);
                 prop_assert_eq!(
