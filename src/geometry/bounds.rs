@@ -545,10 +545,11 @@ pub fn lanes(t: &[f64; 4]) -> f32x4 {
     f32x4::new(t.map(|x| x as f32))
 }
 
-/// [`lanes`] for eight limits.
+/// [`lanes`] for eight limits, four at a time.
 #[inline(always)]
 pub fn lanes8(t: &[f64; 8]) -> f32x8 {
-    f32x8::new(t.map(|x| x as f32))
+    let (lo, hi) = halves(t);
+    bytemuck::cast([lanes(lo), lanes(hi)])
 }
 
 #[cfg(test)]

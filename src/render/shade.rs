@@ -253,7 +253,7 @@ pub fn light_term_as<C: Conventions>(
             r_dot_v
         };
         // Where `r·v < 0` the power is of +0, which is +0 for any shininess above 0:
-        // about half the terms, spared their call to `pow`.
+        // nearly half the terms, spared their call to `pow`.
         let highlight = if cosine < 0.0 && m.shininess > 0.0 {
             0.0
         } else {
