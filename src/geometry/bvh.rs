@@ -17,8 +17,7 @@ use rayon::prelude::*;
 #[cfg(target_arch = "x86_64")]
 use super::bounds::x86::{Avx2, Avx512};
 use super::bounds::{
-    Aabb, Box32, BoxPair32, PairTest8, SlabRay, SlabRay4, box32, halves, lanes, lanes_of, lanes8,
-    within8,
+    Aabb, Box32, BoxPair32, PairTest8, SlabRay, SlabRay4, box32, lanes_of, lanes8, within8,
 };
 use super::ray::Ray;
 use wide::{f32x4, f32x8};
@@ -551,19 +550,18 @@ impl Bvh {
             return;
         }
         let t_min = t_min as f32;
+        // The limits as the box tests read them (the root's test too), rounded again
+        // only when a leaf may have lowered them, not at every node.
+        let mut limits = lanes8(t_max);
         let entered = {
-            let (lo, hi) = halves(t_max);
-            let enter =
-                |r: &SlabRay4, t: &[f64; 4]| r.enter(&self.root32, f32x4::splat(t_min), lanes(t)).0;
+            let [lo, hi]: [f32x4; 2] = bytemuck::cast(limits);
+            let enter = |r: &SlabRay4, t| r.enter(&self.root32, f32x4::splat(t_min), t).0;
             enter(&rays[0], lo) | enter(&rays[1], hi) << 4
         };
         let mut mask = active & entered;
         if mask == 0 {
             return;
         }
-        // The limits as the box tests read them, rounded again only when a leaf may
-        // have lowered them, not at every node.
-        let mut limits = lanes8(t_max);
         // (subtree, its rays, their entry λ).
         let mut stack: ArrayVec<(u32, u32, f32x8), STACK_SIZE> = ArrayVec::new();
         let mut cur = self.root;
