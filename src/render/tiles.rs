@@ -25,9 +25,14 @@ use super::cost::RayBudget;
 /// Default tile edge in pixels.
 pub const DEFAULT_TILE_PX: u32 = 32;
 
-/// Neighbouring pixels of a row whose primary rays are traced as one packet: a tile
-/// row's pixels beyond a multiple of it are traced one at a time, at a greater cost.
+/// Neighbouring pixels whose primary rays are traced as one packet: four of each of
+/// two rows, or eight of a row where a tile has one row left. A tile's pixels beyond a
+/// multiple of the packet's width are traced one at a time, at a greater cost.
 pub const PACKET_PIXELS: u32 = 8;
+
+/// Rows a tile's kernel is given at a time ([`Kernel::rows`]): a pair, so that a packet
+/// can be a block of two rows ([`PACKET_PIXELS`]).
+pub const KERNEL_ROWS: u32 = 2;
 
 /// The most pixels a band (one row of tiles) spans when it is more than one pixel high,
 /// for sinks that write rows in order ([`TileShape::rows`]): they must hold a band's
@@ -119,12 +124,21 @@ pub trait Kernel: Sync {
     /// Computes pixel `(u, v)` of the full frame, adding the rays it traced to `rays`.
     fn pixel(&self, u: u32, v: u32, rays: &mut u64) -> Self::Pixel;
 
-    /// Appends pixels `(u, v)` to `(u + width − 1, v)` to `out`, each what
-    /// [`Kernel::pixel`] gives: a kernel may trace neighbours together.
+    /// Appends to `out` rows `v` to `v + rows − 1` of pixels `u` to `u + width − 1`,
+    /// row-major, each what [`Kernel::pixel`] gives: a kernel may trace neighbours
+    /// together. The tile loop asks for [`KERNEL_ROWS`] rows at a time (one where a
+    /// tile has one left).
     #[inline]
-    fn row(&self, u: u32, v: u32, width: u32, rays: &mut u64, out: &mut Vec<Self::Pixel>) {
-        for u in u..u + width {
-            out.push(self.pixel(u, v, rays));
+    fn rows(
+        &self,
+        (u, v, width, rows): (u32, u32, u32, u32),
+        rays: &mut u64,
+        out: &mut Vec<Self::Pixel>,
+    ) {
+        for v in v..v + rows {
+            for u in u..u + width {
+                out.push(self.pixel(u, v, rays));
+            }
         }
     }
 }
@@ -234,11 +248,12 @@ pub fn trace_tile<K: Kernel>(
 ) -> Result<Tile<K::Pixel>, Stopped> {
     let mut pixels = Vec::with_capacity(r.pixels() as usize);
     let mut n = 0u64;
-    for v in r.y..r.y + r.height {
+    for v in (r.y..r.y + r.height).step_by(KERNEL_ROWS as usize) {
+        let rows = KERNEL_ROWS.min(r.y + r.height - v);
         let before = n;
-        kernel.row(r.x, v, r.width, &mut n, &mut pixels);
-        // Charged by the row, not the pixel: one atomic add per row costs nothing next
-        // to the row, and a costly render still stops within a row.
+        kernel.rows((r.x, v, r.width, rows), &mut n, &mut pixels);
+        // Charged by the rows, not the pixel: one atomic add per pair of rows costs
+        // nothing next to them, and a costly render still stops within two rows.
         cancel.charge(n - before);
         if cancel.is_cancelled() {
             return Err(Stopped::Cancelled);

@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 use raytile::geometry::Ray;
-use raytile::render::Renderer;
+use raytile::render::{Packet, Renderer};
 use raytile::scene::{Limits, parse};
 use serde_json::{Value, json};
 
@@ -177,28 +177,50 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
         assert_eq!(r.world.traces_shadow_packets(), seed == 35);
         let (w, h) = (r.scene.width, r.scene.height);
         let mut hits = 0;
-        for v in 0..h {
-            // One shader a row, as the renderer's: its shadow hints carry from packet
-            // to packet and change no colour.
-            let shader = r.shader();
-            for u in (0..w - 7).step_by(8) {
-                let alone: Vec<_> = (u..u + 8).map(|x| r.pixel_hit(x, v)).collect();
-                let mut packet = Vec::new();
-                r.pixel_hits8(u, v, &mut packet);
-                assert_eq!(packet, alone, "seed {seed} ({u}, {v})");
-                hits += alone.iter().flatten().count();
-                let mut n = raytile::render::RayCount(0);
-                let colours = r
-                    .pixel_colours8(&shader, u, v, &mut n)
-                    .expect("one sample a pixel");
-                let mut m = raytile::render::RayCount(0);
-                let one: Vec<_> = (u..u + 8).map(|x| r.pixel_colour(x, v, &mut m)).collect();
-                assert_eq!(colours.to_vec(), one, "seed {seed} ({u}, {v})");
-                assert_eq!(n.0, m.0, "the same rays are counted");
+        // Packets of both shapes: eight pixels of a row, and four of each of two rows.
+        for rows in [1, 2] {
+            for v in (0..h - (rows - 1)).step_by(rows as usize) {
+                // One shader a pair of rows, as the renderer's: its shadow hints carry
+                // from packet to packet and change no colour.
+                let shader = r.shader();
+                let cols = 8 / rows;
+                for u in (0..w - (cols - 1)).step_by(cols as usize) {
+                    let p = if rows == 1 {
+                        Packet::row(u, v)
+                    } else {
+                        Packet::pair(u, v)
+                    };
+                    let pixels: Vec<_> = (0..8).map(|k| p.pixel(k)).collect();
+                    let expected: Vec<_> = (0..rows)
+                        .flat_map(|y| (0..cols).map(move |x| (u + x, v + y)))
+                        .collect();
+                    assert_eq!(
+                        pixels, expected,
+                        "lane k at (u + k mod cols, v + k div cols)"
+                    );
+                    let alone: Vec<_> = pixels.iter().map(|&(x, y)| r.pixel_hit(x, y)).collect();
+                    let (mut first, mut second) = (Vec::new(), Vec::new());
+                    r.pixel_hits8(p, [&mut first, &mut second]);
+                    assert_eq!(first.len() as u32, cols, "one row's pixels in the first");
+                    let packet = [first, second].concat();
+                    assert_eq!(packet, alone, "seed {seed} {p:?}");
+                    hits += alone.iter().flatten().count();
+                    let mut n = raytile::render::RayCount(0);
+                    let colours = r
+                        .pixel_colours8(&shader, p, &mut n)
+                        .expect("one sample a pixel");
+                    let mut m = raytile::render::RayCount(0);
+                    let one: Vec<_> = pixels
+                        .iter()
+                        .map(|&(x, y)| r.pixel_colour(x, y, &mut m))
+                        .collect();
+                    assert_eq!(colours.to_vec(), one, "seed {seed} {p:?}");
+                    assert_eq!(n.0, m.0, "the same rays are counted");
+                }
             }
         }
         assert!(
-            hits > (w * h / 10) as usize,
+            hits > (2 * w * h / 10) as usize,
             "seed {seed}: only {hits} hits"
         );
         // Eight unrelated rays at a time: a packet that parts at once.
