@@ -204,8 +204,9 @@ impl Renderer {
         }
     }
 
-    /// A shader of this scene for one thread's pixels, one after another: those of a
-    /// row given to it in order share its shadow hints ([`Shader::new`]).
+    /// A shader of this scene for one thread's pixels, one after another: those given
+    /// to it in order (a tile's pair of rows, packet by packet) share its shadow hints
+    /// ([`Shader::new`]).
     pub fn shader(&self) -> Shader<'_> {
         Shader::new(&self.scene, &self.world)
     }

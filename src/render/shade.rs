@@ -396,7 +396,7 @@ pub struct Shader<'a> {
 
 impl<'a> Shader<'a> {
     /// A shader of `scene`, tracing through `world` (built from it). Pixels shaded by
-    /// one shader one after another, in order along a row, share its hints.
+    /// one shader one after another, neighbours in order, share its hints.
     pub fn new(scene: &'a Scene, world: &'a World) -> Shader<'a> {
         Shader {
             scene,
