@@ -124,18 +124,19 @@ pub trait Kernel: Sync {
     /// Computes pixel `(u, v)` of the full frame, adding the rays it traced to `rays`.
     fn pixel(&self, u: u32, v: u32, rays: &mut u64) -> Self::Pixel;
 
-    /// Appends to `out` rows `v` to `v + rows − 1` of pixels `u` to `u + width − 1`,
-    /// row-major, each what [`Kernel::pixel`] gives: a kernel may trace neighbours
-    /// together. The tile loop asks for [`KERNEL_ROWS`] rows at a time (one where a
-    /// tile has one left).
+    /// Appends row `v` of pixels `u` to `u + width − 1`, each what [`Kernel::pixel`]
+    /// gives, to `out[0]`, and row `v + 1` to `out[1]` when `rows` is 2: a kernel may
+    /// trace neighbours together. The tile loop asks for [`KERNEL_ROWS`] rows at a
+    /// time (one where a tile has one left), and appends the second row's pixels after
+    /// the first's.
     #[inline]
     fn rows(
         &self,
         (u, v, width, rows): (u32, u32, u32, u32),
         rays: &mut u64,
-        out: &mut Vec<Self::Pixel>,
+        out: [&mut Vec<Self::Pixel>; KERNEL_ROWS as usize],
     ) {
-        for v in v..v + rows {
+        for (v, out) in (v..v + rows).zip(out) {
             for u in u..u + width {
                 out.push(self.pixel(u, v, rays));
             }
@@ -247,11 +248,15 @@ pub fn trace_tile<K: Kernel>(
     cancel: &Cancel,
 ) -> Result<Tile<K::Pixel>, Stopped> {
     let mut pixels = Vec::with_capacity(r.pixels() as usize);
+    // A pair's second row, gathered apart and then appended in one bulk copy: each
+    // pixel made in its place in the tile would be copied through the stack twice.
+    let mut second = Vec::with_capacity(r.width as usize);
     let mut n = 0u64;
     for v in (r.y..r.y + r.height).step_by(KERNEL_ROWS as usize) {
         let rows = KERNEL_ROWS.min(r.y + r.height - v);
         let before = n;
-        kernel.rows((r.x, v, r.width, rows), &mut n, &mut pixels);
+        kernel.rows((r.x, v, r.width, rows), &mut n, [&mut pixels, &mut second]);
+        pixels.append(&mut second);
         // Charged by the rows, not the pixel: one atomic add per pair of rows costs
         // nothing next to them, and a costly render still stops within two rows.
         cancel.charge(n - before);
