@@ -465,22 +465,12 @@ impl Bvh {
     /// where the processor has AVX-512 ([`SlabRay16`](super::bounds::x86::SlabRay16)),
     /// in two passes of eight where it has AVX2, else in four of four: the same
     /// operations each way, so the traversal and its results are the same.
+    ///
+    /// Of two children that some ray enters both of, the traversal goes first to the
+    /// one that ray enters first, or, with `FAR_FIRST`, to the other (for
+    /// [`Bvh::any8`]).
     #[inline]
-    pub fn closest8<F: FnMut(u32, u32, &mut [f64; 8])>(
-        &self,
-        rays: &[SlabRay4; 2],
-        t_min: f64,
-        t_max: &mut [f64; 8],
-        active: u32,
-        leaf: F,
-    ) {
-        self.ordered8::<false, F>(rays, t_min, t_max, active, leaf)
-    }
-
-    /// [`Bvh::closest8`], going first, of two children that some ray enters both of,
-    /// to the one that ray enters first, or with `FAR_FIRST` to the other.
-    #[inline(always)]
-    fn ordered8<const FAR_FIRST: bool, F: FnMut(u32, u32, &mut [f64; 8])>(
+    pub fn closest8<const FAR_FIRST: bool, F: FnMut(u32, u32, &mut [f64; 8])>(
         &self,
         rays: &[SlabRay4; 2],
         t_min: f64,
@@ -531,7 +521,7 @@ impl Bvh {
     ) -> u32 {
         let mut occluded = 0;
         let mut limits = t_max;
-        self.ordered8::<true, _>(
+        self.closest8::<true, _>(
             rays,
             t_min,
             &mut limits,
@@ -1409,7 +1399,7 @@ mod tests {
                         }
                     };
                     match path {
-                        0 => bvh.closest8(&slab, 1e-9, &mut limits, active, leaf),
+                        0 => bvh.closest8::<false, _>(&slab, 1e-9, &mut limits, active, leaf),
                         1 => in_eight_lanes(&bvh, &slab, &mut limits, active, leaf),
                         _ => bvh.traverse8::<false, _, _>(&slab, &slab, 1e-9, &mut limits, active, leaf),
                     }

@@ -282,7 +282,7 @@ impl World {
             self.consider8(i, rays, from_view, t_min, 0xff, &mut limit, &mut best);
         }
         if let Some(slab) = slab {
-            self.bvh.closest8(
+            self.bvh.closest8::<false, _>(
                 &slab,
                 t_min,
                 &mut limit,

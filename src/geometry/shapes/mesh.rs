@@ -131,7 +131,7 @@ impl CanonicalShape for Mesh {
         };
         let mut best: [Option<(f64, u32)>; 8] = [None; 8];
         let mut limits = t_max;
-        a.bvh.closest8(
+        a.bvh.closest8::<false, _>(
             &slab,
             t_min,
             &mut limits,
