@@ -251,10 +251,7 @@ fn rows_in_packets<K: Kernel>(
     packet: impl Fn(Packet, &mut u64, [&mut Vec<K::Pixel>; 2]) -> bool,
 ) {
     debug_assert!((1..=KERNEL_ROWS).contains(&rows));
-    let mut p = match rows {
-        2 => Packet::pair(u, v),
-        _ => Packet::row(u, v),
-    };
+    let mut p = Packet { u, v, rows };
     let cols = p.cols();
     while p.u + cols <= u + width && packet(p, rays, [&mut *first, &mut *second]) {
         p.u += cols;
