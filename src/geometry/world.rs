@@ -149,6 +149,12 @@ impl World {
         self.solids.is_empty()
     }
 
+    /// A box around every bounded object (every object but the planes): a ray that
+    /// misses it can meet only the unbounded ones.
+    pub fn bounds(&self) -> Aabb {
+        self.bvh.bounds()
+    }
+
     /// Declares the point most rays start from (the camera). Each object keeps it in
     /// object space, so a ray from there is carried into the object by its direction
     /// alone; the origin is the same `object_from_world · o` either way, bit for bit.
@@ -256,12 +262,24 @@ impl World {
     /// packet (neighbouring primary rays take much the same path): each ray's hit is
     /// the one it finds alone, bit for bit. Rays whose numbers the packet's
     /// single-precision test does not take are traced one at a time.
-    pub fn closest8(&self, rays: &[Ray; 8], t_min: f64, t_max: f64) -> [Option<Hit>; 8] {
-        let lone = self.lone();
-        let slab = match lone {
-            Some(_) => None,
+    ///
+    /// `bounded` false says the caller knows that no ray of the packet meets
+    /// [`World::bounds`]: only the unbounded objects are tested.
+    pub fn closest8(
+        &self,
+        rays: &[Ray; 8],
+        t_min: f64,
+        t_max: f64,
+        bounded: bool,
+    ) -> [Option<Hit>; 8] {
+        if !bounded && self.unbounded.is_empty() {
+            return [None; 8];
+        }
+        let (lone, slab) = match self.lone() {
+            _ if !bounded => (None, None),
+            Some(i) => (Some(i), None),
             None => match SlabRay4::pair(rays) {
-                Some(slab) => Some(slab),
+                Some(slab) => (None, Some(slab)),
                 None => return rays.map(|r| self.closest(&r, t_min, t_max)),
             },
         };

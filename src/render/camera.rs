@@ -2,10 +2,11 @@
 //! `p(λ) = [0,0,0,1] + λ [−1 + x·2/w, −h/w + y·2/w, f, 0]` with `x = u + ½`, `y = v + ½`
 //! at a pixel's centre, then carried into world space by `world_from_camera`.
 
-use glam::{DAffine3, DVec2, DVec3};
+use glam::{DAffine3, DMat3, DVec2, DVec3};
 
+use super::Rect;
 use super::shade::{Conventions, Lecture};
-use crate::geometry::Ray;
+use crate::geometry::{Ray, bounds::Aabb};
 use crate::scene::Scene;
 
 /// How far in front of the eye, in focal lengths, a path on its way behind the camera is
@@ -16,6 +17,12 @@ const NEAR: f64 = 1e-6;
 /// lengths of its direction: far enough to leave any image it crosses.
 const FAR: f64 = 1e6;
 
+/// How far outside a block's view a box must lie, relative to its distance from the
+/// eye (about an angle, in radians), for [`PrimaryRays::misses`] to say no ray meets
+/// it: far above the rounding of a ray's direction, even through an ill-conditioned
+/// camera transform, and far below a pixel's width.
+const SEPARATION: f64 = 1e-6;
+
 /// Makes the primary rays of a scene's camera.
 #[derive(Debug, Clone, Copy)]
 pub struct PrimaryRays {
@@ -25,6 +32,9 @@ pub struct PrimaryRays {
     height: f64,
     focal_length: f64,
     identity: bool,
+    /// `(M⁻¹)ᵀ` of the linear part `M` of `world_from_camera`: carries a camera-space
+    /// plane's normal into world space. `None` when `M` has no usable inverse.
+    normal_to_world: Option<DMat3>,
 }
 
 impl PrimaryRays {
@@ -38,7 +48,46 @@ impl PrimaryRays {
             height: scene.height as f64,
             focal_length: scene.camera.focal_length,
             identity: m == DAffine3::IDENTITY,
+            normal_to_world: Some(m.matrix3.inverse().transpose())
+                .filter(|n| m.matrix3.determinant() != 0.0 && n.is_finite()),
         }
+    }
+
+    /// Whether no primary ray through any point of the pixels of `block`, under any
+    /// conventions and any samples, can meet world-space box `bounds`: a ray starts at
+    /// the eye, and its direction lies in the cone of the block's corners (it is
+    /// linear in the image point), so a box wholly outside one of the cone's four
+    /// sides is missed by every ray. Conservative: the cone is taken a pixel wider on
+    /// every side, and the box must lie outside it by [`SEPARATION`], so rounding
+    /// never makes it say so of a box some ray enters. `false` when unsure (a camera
+    /// transform without an inverse, a box that is not finite).
+    pub fn misses(&self, block: Rect, bounds: &Aabb) -> bool {
+        let Some(to_world) = self.normal_to_world else {
+            return false;
+        };
+        let (w, h, f) = (self.width, self.height, self.focal_length);
+        let x = |u: f64| -1.0 + u * 2.0 / w;
+        let y = |v: f64| -h / w + v * 2.0 / w;
+        let (u0, v0) = (f64::from(block.x) - 1.0, f64::from(block.y) - 1.0);
+        let u1 = f64::from(block.x) + f64::from(block.width) + 1.0;
+        let v1 = f64::from(block.y) + f64::from(block.height) + 1.0;
+        // Each side's inward normal in camera space: a camera-space point `q` on a ray
+        // of the block has `f·q.x − x(u₀)·q.z ≥ 0`, and so on (`f > 0`, `q.z > 0`).
+        let sides = [
+            DVec3::new(f, 0.0, -x(u0)),
+            DVec3::new(-f, 0.0, x(u1)),
+            DVec3::new(0.0, f, -y(v0)),
+            DVec3::new(0.0, -f, y(v1)),
+        ];
+        let (lo, hi) = (bounds.min - self.origin, bounds.max - self.origin);
+        sides.iter().any(|&side| {
+            let n = to_world * side;
+            // The box's corner farthest along the normal, and a bound on every
+            // corner's product with it, to measure the margin against.
+            let farthest = DVec3::select(n.cmpgt(DVec3::ZERO), hi, lo);
+            let scale = n.abs().dot(lo.abs().max(hi.abs()));
+            n.dot(farthest) < -SEPARATION * scale
+        })
     }
 
     /// The camera-space direction through image point `(x, y)` in pixel units.
@@ -149,6 +198,8 @@ impl PrimaryRays {
 mod tests {
     use super::*;
     use crate::scene::{Limits, parse};
+    use proptest::prop_oneof;
+    use proptest::strategy::Strategy;
 
     fn camera(json: &str) -> PrimaryRays {
         PrimaryRays::new(&parse(json.as_bytes(), &Limits::NONE).unwrap())
@@ -174,6 +225,123 @@ mod tests {
                 assert!((a - DVec2::new(x, y)).length() < 1e-9 && (b - a).length() < 1e-9);
             }
         }
+    }
+
+    /// Whether some ray of the block (through its pixels' corners, edges' midpoints,
+    /// centres and sample points) enters `b` in front of the eye.
+    fn some_ray_enters(cam: &PrimaryRays, block: Rect, b: &Aabb) -> bool {
+        let steps = [0.0, 0.25, 0.5, 0.75, 1.0 - 1e-12];
+        (0..block.width).any(|i| {
+            (0..block.height).any(|j| {
+                steps.iter().any(|&dx| {
+                    steps.iter().any(|&dy| {
+                        let x = f64::from(block.x + i) + dx;
+                        let y = f64::from(block.y + j) + dy;
+                        let r = cam.through(x, y);
+                        crate::geometry::bounds::SlabRay::new(r.origin, r.dir)
+                            .enter(b.min, b.max, 0.0, f64::INFINITY)
+                            .is_some()
+                    })
+                })
+            })
+        })
+    }
+
+    fn cube(centre: DVec3, half: f64) -> Aabb {
+        Aabb {
+            min: centre - DVec3::splat(half),
+            max: centre + DVec3::splat(half),
+        }
+    }
+
+    #[test]
+    fn a_box_beside_behind_or_in_view_of_a_block() {
+        let cam = camera(TILTED);
+        let block = Rect {
+            x: 10,
+            y: 8,
+            width: 8,
+            height: 2,
+        };
+        let through = |x: f64, y: f64, t: f64| {
+            let r = cam.through(x, y);
+            r.origin + t * r.dir
+        };
+        // In view: a box on the block's middle ray, or around the eye.
+        let seen = cube(through(14.0, 9.0, 5.0), 0.01);
+        assert!(!cam.misses(block, &seen) && some_ray_enters(&cam, block, &seen));
+        assert!(!cam.misses(block, &cube(cam.origin(), 0.5)));
+        // Beside it, five pixels left, right, above or below; behind the eye.
+        for (x, y) in [(5.0, 9.0), (23.0, 9.0), (14.0, 3.0), (14.0, 15.0)] {
+            let beside = cube(through(x, y, 5.0), 0.01);
+            assert!(cam.misses(block, &beside), "({x}, {y})");
+        }
+        assert!(cam.misses(block, &cube(through(14.0, 9.0, -5.0), 0.5)));
+        // Not far enough out to be sure: within the pixel of margin.
+        assert!(!cam.misses(block, &cube(through(9.5, 9.0, 5.0), 1e-6)));
+        // Boxes that are not finite, and a camera without an inverse, say nothing.
+        let everything = Aabb {
+            min: DVec3::splat(f64::NEG_INFINITY),
+            max: DVec3::splat(f64::INFINITY),
+        };
+        assert!(!cam.misses(block, &everything));
+        let mut flat = cam;
+        flat.normal_to_world = None;
+        assert!(!flat.misses(block, &cube(through(5.0, 9.0, 5.0), 0.01)));
+    }
+
+    proptest::proptest! {
+        /// A box around a point of a ray through any point of a block (its pixels'
+        /// edges too), however small, is never said to be missed by the block's rays:
+        /// from any camera, near the eye or far from it.
+        #[test]
+        fn a_box_some_ray_of_the_block_enters_is_never_said_to_be_missed(
+            eye in proptest::array::uniform3(-20.0f64..20.0),
+            target in proptest::array::uniform3(-20.0f64..20.0),
+            focal in prop_oneof![0.05f64..0.5, 0.5f64..5.0, 5.0f64..500.0],
+            (w, h) in (8u32..4096, 8u32..4096),
+            corner in (0.0f64..1.0, 0.0f64..1.0),
+            size in (1u32..81, 1u32..3),
+            at in (edge_or_inside(), edge_or_inside()),
+            t in prop_oneof![1e-3f64..1.0, 1.0f64..1e4],
+            half in prop_oneof![1e-13f64..1e-9, 1e-9f64..1e-2],
+        ) {
+            let (eye, target) = (DVec3::from(eye), DVec3::from(target));
+            proptest::prop_assume!((target - eye).length() > 0.1);
+            let doc = format!(
+                r#"{{"version": 1, "image": {{"width": {w}, "height": {h}}},
+                "camera": {{"focal_length": {focal}, "look_at": {{"eye": [{}, {}, {}],
+                "target": [{}, {}, {}], "up": [0.3, 1, 0.1]}}}},
+                "objects": [], "lights": []}}"#,
+                eye.x, eye.y, eye.z, target.x, target.y, target.z
+            );
+            let scene = parse(doc.as_bytes(), &Limits::NONE).expect("a camera");
+            let cam = PrimaryRays::new(&scene);
+            let (x, y) = ((corner.0 * f64::from(w)) as u32, (corner.1 * f64::from(h)) as u32);
+            let block = Rect {
+                x,
+                y,
+                width: size.0.min(w - x),
+                height: size.1.min(h - y),
+            };
+            let r = cam.through(
+                f64::from(block.x) + at.0 * f64::from(block.width),
+                f64::from(block.y) + at.1 * f64::from(block.height),
+            );
+            let p = r.origin + t * r.dir;
+            let b = cube(p, half * (p - r.origin).length().max(1e-300));
+            proptest::prop_assert!(!cam.misses(block, &b), "{block:?} {b:?}");
+        }
+    }
+
+    /// Where in a block a ray goes through, as a fraction of its width or height: its
+    /// edges (the far one a hair inside) or anywhere between.
+    fn edge_or_inside() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            proptest::strategy::Just(0.0),
+            proptest::strategy::Just(1.0 - 1e-15),
+            0.0f64..1.0
+        ]
     }
 
     #[test]

@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 use raytile::geometry::Ray;
-use raytile::render::{Packet, Renderer};
+use raytile::render::{Packet, Rect, Renderer};
 use raytile::scene::{Limits, parse};
 use serde_json::{Value, json};
 
@@ -176,7 +176,7 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
         // through a tree of objects.
         assert_eq!(r.world.traces_shadow_packets(), seed == 35);
         let (w, h) = (r.scene.width, r.scene.height);
-        let mut hits = 0;
+        let (mut hits, mut skipped) = (0, 0);
         // Packets of both shapes: eight pixels of a row, and four of each of two rows.
         for rows in [1, 2] {
             for v in (0..h - (rows - 1)).step_by(rows as usize) {
@@ -199,15 +199,23 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                         "lane k at (u + k mod cols, v + k div cols)"
                     );
                     let alone: Vec<_> = pixels.iter().map(|&(x, y)| r.pixel_hit(x, y)).collect();
+                    // Packets whose rays all miss the objects' box test the planes alone.
+                    let bounded = r.may_meet_objects(Rect {
+                        x: u,
+                        y: v,
+                        width: cols,
+                        height: rows,
+                    });
+                    skipped += usize::from(!bounded);
                     let (mut first, mut second) = (Vec::new(), Vec::new());
-                    r.pixel_hits8(p, [&mut first, &mut second]);
+                    r.pixel_hits8(p, bounded, [&mut first, &mut second]);
                     assert_eq!(first.len() as u32, cols, "one row's pixels in the first");
                     let packet = [first, second].concat();
                     assert_eq!(packet, alone, "seed {seed} {p:?}");
                     hits += alone.iter().flatten().count();
                     let mut n = raytile::render::RayCount(0);
                     let colours = r
-                        .pixel_colours8(&shader, p, &mut n)
+                        .pixel_colours8(&shader, p, bounded, &mut n)
                         .expect("one sample a pixel");
                     let mut m = raytile::render::RayCount(0);
                     let one: Vec<_> = pixels
@@ -223,6 +231,8 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
             hits > (2 * w * h / 10) as usize,
             "seed {seed}: only {hits} hits"
         );
+        // Around the height field alone there is sky: packets there test no object.
+        assert!(seed != 35 || skipped > 0, "no packet skipped the objects");
         // Eight unrelated rays at a time: a packet that parts at once.
         let mut rng = Rng(seed * 104_729);
         for _ in 0..500 {
@@ -232,7 +242,7 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                     DVec3::from(rng.v3(-1.0, 1.0)),
                 )
             });
-            let eight = r.world.closest8(&rays, 1e-9, f64::INFINITY);
+            let eight = r.world.closest8(&rays, 1e-9, f64::INFINITY, true);
             for (k, ray) in rays.iter().enumerate() {
                 assert_eq!(
                     eight[k],
@@ -247,7 +257,7 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
             // are traced one at a time, with the same answers.
             let mut flat = rays;
             flat[2 + 4 * (rng.0 as usize % 2)].dir.y = 0.0;
-            let eight = r.world.closest8(&flat, 1e-9, f64::INFINITY);
+            let eight = r.world.closest8(&flat, 1e-9, f64::INFINITY, true);
             for (k, ray) in flat.iter().enumerate() {
                 assert_eq!(
                     eight[k],
