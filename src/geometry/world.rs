@@ -410,6 +410,9 @@ impl World {
     /// renders of `classic` and `cubes-10k` 6–7 % slower (`spheres-1k` 3 % faster),
     /// while `mesh-100k`'s were 11 % faster.
     pub fn occluded8(&self, rays: &[Ray; 8], active: u32, t_min: f64, t_max: [f64; 8]) -> u32 {
+        if active == 0 {
+            return 0;
+        }
         let Some(mesh) = self.shadow_packet_object() else {
             return lanes_where(active, |lane| {
                 self.occluded(&rays[lane], t_min, t_max[lane])

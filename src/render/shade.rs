@@ -520,6 +520,10 @@ impl Shader<'_> {
             c[k] = ambient;
             Some(at)
         });
+        if at.iter().all(Option::is_none) {
+            // Sky: the background, and no light to look at.
+            return c;
+        }
         for light in &self.scene.lights {
             let (mut shadow, mut t_max) = (*primary, [0.0; 8]);
             let (mut lit, mut cast) = ([DVec3::ZERO; 8], 0u32);
