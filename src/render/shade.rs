@@ -515,18 +515,24 @@ impl Shader<'_> {
         }
         rays.0 += 8;
         let mut c = [self.scene.background; 8];
-        let at: [Option<HitPoint>; 8] = std::array::from_fn(|k| {
-            let (at, ambient) = self.hit_point_as::<Lecture>(&primary[k], &hits[k]?);
-            c[k] = ambient;
-            Some(at)
-        });
-        if at.iter().all(Option::is_none) {
+        if hits.iter().all(Option::is_none) {
             // Sky: the background, and no light to look at.
             return c;
         }
+        // Filled in place: made by `array::from_fn`, the eight records (150 bytes
+        // each) were copied once more.
+        let mut at: [Option<HitPoint>; 8] = [const { None }; 8];
+        for (k, hit) in hits.iter().enumerate() {
+            if let Some(hit) = hit {
+                let (point, ambient) = self.hit_point_as::<Lecture>(&primary[k], hit);
+                (at[k], c[k]) = (Some(point), ambient);
+            }
+        }
+        // A light's shadow rays, limits and terms: only the lanes of the light's `cast`
+        // are written and read, so the arrays serve every light without being reset.
+        let (mut shadow, mut t_max, mut lit) = (*primary, [0.0; 8], [DVec3::ZERO; 8]);
         for light in &self.scene.lights {
-            let (mut shadow, mut t_max) = (*primary, [0.0; 8]);
-            let (mut lit, mut cast) = ([DVec3::ZERO; 8], 0u32);
+            let mut cast = 0u32;
             for (k, at) in at.iter().enumerate() {
                 let Some(at) = at else { continue };
                 let t = light_term_as::<Lecture>(light, &at.s, at.n, primary[k].dir, at.m);
