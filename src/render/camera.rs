@@ -65,19 +65,20 @@ impl PrimaryRays {
         let Some(to_world) = self.normal_to_world else {
             return false;
         };
-        let (w, h, f) = (self.width, self.height, self.focal_length);
-        let x = |u: f64| -1.0 + u * 2.0 / w;
-        let y = |v: f64| -h / w + v * 2.0 / w;
-        let (u0, v0) = (f64::from(block.x) - 1.0, f64::from(block.y) - 1.0);
-        let u1 = f64::from(block.x) + f64::from(block.width) + 1.0;
-        let v1 = f64::from(block.y) + f64::from(block.height) + 1.0;
+        // The camera-space directions through the widened block's two far corners.
+        let near = self.camera_dir(f64::from(block.x) - 1.0, f64::from(block.y) - 1.0);
+        let far = self.camera_dir(
+            f64::from(block.x) + f64::from(block.width) + 1.0,
+            f64::from(block.y) + f64::from(block.height) + 1.0,
+        );
         // Each side's inward normal in camera space: a camera-space point `q` on a ray
-        // of the block has `f·q.x − x(u₀)·q.z ≥ 0`, and so on (`f > 0`, `q.z > 0`).
+        // of the block has `f·q.x − near.x·q.z ≥ 0`, and so on (`f > 0`, `q.z > 0`).
+        let f = self.focal_length;
         let sides = [
-            DVec3::new(f, 0.0, -x(u0)),
-            DVec3::new(-f, 0.0, x(u1)),
-            DVec3::new(0.0, f, -y(v0)),
-            DVec3::new(0.0, -f, y(v1)),
+            DVec3::new(f, 0.0, -near.x),
+            DVec3::new(-f, 0.0, far.x),
+            DVec3::new(0.0, f, -near.y),
+            DVec3::new(0.0, -f, far.y),
         ];
         let (lo, hi) = (bounds.min - self.origin, bounds.max - self.origin);
         sides.iter().any(|&side| {
