@@ -189,7 +189,15 @@ impl Bvh {
     /// tests of a node's boxes: the surface area heuristic splits a few primitives
     /// further, rather than leaving them in one leaf, the more a primitive costs.
     pub fn build(bounds: &[Aabb], test_cost: f64) -> Bvh {
-        Bvh::build_from(bounds, test_cost, usize::MAX)
+        Bvh::build_from(bounds, test_cost, 1, usize::MAX)
+    }
+
+    /// [`Bvh::build`] for a caller that tests a leaf's primitives `lanes` at a time
+    /// (see [`Bvh::into_slots`]): `group_cost` is what testing a ray against a group of
+    /// up to `lanes` costs, and the surface area heuristic counts a leaf's cost, and
+    /// each side's of a split, in groups.
+    pub fn build_in_groups(bounds: &[Aabb], group_cost: f64, lanes: usize) -> Bvh {
+        Bvh::build_from(bounds, group_cost, lanes.max(1), usize::MAX)
     }
 
     /// [`Bvh::build`], the two halves of every subtree of 8192 (`PARALLEL_PRIMS`) or more
@@ -198,10 +206,10 @@ impl Bvh {
     /// inside its `OnceLock`): while it waits for a half, a rayon thread runs other jobs,
     /// and one of them could wait for that lock, on the very thread that holds it.
     pub fn build_in_parallel(bounds: &[Aabb], test_cost: f64) -> Bvh {
-        Bvh::build_from(bounds, test_cost, PARALLEL_PRIMS)
+        Bvh::build_from(bounds, test_cost, 1, PARALLEL_PRIMS)
     }
 
-    fn build_from(bounds: &[Aabb], test_cost: f64, parallel_from: usize) -> Bvh {
+    fn build_from(bounds: &[Aabb], test_cost: f64, lanes: usize, parallel_from: usize) -> Bvh {
         let mut prims: Vec<BuildPrim> = bounds
             .iter()
             .enumerate()
@@ -225,6 +233,7 @@ impl Bvh {
                 0,
                 Split {
                     test_cost,
+                    lanes,
                     parallel_from,
                 },
                 side,
@@ -368,13 +377,28 @@ impl Bvh {
         &self.order
     }
 
-    /// The same tree with its leaves naming positions in [`Bvh::order`] instead of
-    /// primitive indices, for callers that store their primitives in leaf order.
-    pub fn into_leaf_order(mut self) -> Bvh {
-        for (k, p) in self.order.iter_mut().enumerate() {
-            *p = k as u32;
+    /// The same tree with its leaves naming slots instead of primitive indices, for a
+    /// caller that stores its primitives leaf by leaf in groups of `lanes` slots, to
+    /// test a leaf's primitives together: each leaf's primitives take consecutive
+    /// slots, in one group where they fit in one. A group's last slots are left empty
+    /// only where the next leaf would not fit in them, so a leaf of `k ≤ lanes`
+    /// primitives leaves at most `k − 1` empty before it: at most 1.75 slots a
+    /// primitive for groups of four. Also, for each slot, the primitive stored there
+    /// (`None`: an empty slot).
+    pub fn into_slots(mut self, lanes: usize) -> (Bvh, Vec<Option<u32>>) {
+        let mut held = Vec::with_capacity(self.order.len());
+        for &(first, count) in &self.leaves {
+            let used = held.len() % lanes;
+            if used != 0 && used + count as usize > lanes {
+                held.resize(held.len().next_multiple_of(lanes), None);
+            }
+            for k in first as usize..(first + count) as usize {
+                let prim = self.order[k];
+                self.order[k] = held.len() as u32;
+                held.push(Some(prim));
+            }
         }
-        self
+        (self, held)
     }
 
     /// The bounds of everything held.
@@ -454,8 +478,8 @@ impl Bvh {
     /// [`Bvh::closest`] for eight rays at once (a packet, given as two of four), the
     /// lanes of `active`: the tree is traversed once, each node's boxes tested for all
     /// eight rays, while a subtree that some active ray enters remains.
-    /// `leaf(prim, rays, t_max)` tests one primitive for the rays of the bit set `rays`
-    /// (those that entered its leaf) and lowers their `t_max`. A ray is given every
+    /// `leaf(prims, rays, t_max)` tests a leaf's primitives for the rays of the bit set
+    /// `rays` (those that entered the leaf) and lowers their `t_max`. A ray is given every
     /// primitive [`Bvh::closest`] would give it, and maybe others, so a leaf function
     /// whose result does not depend on the order it sees primitives in (the closest
     /// hit, ties to the lowest index) finds for each ray what it finds alone. `t_min`
@@ -470,7 +494,7 @@ impl Bvh {
     /// one that ray enters first, or, with `FAR_FIRST`, to the other (for
     /// [`Bvh::any8`]).
     #[inline]
-    pub fn closest8<const FAR_FIRST: bool, F: FnMut(u32, u32, &mut [f64; 8])>(
+    pub fn closest8<const FAR_FIRST: bool, F: FnMut(&[u32], u32, &mut [f64; 8])>(
         &self,
         rays: &[SlabRay4; 2],
         t_min: f64,
@@ -498,8 +522,9 @@ impl Bvh {
 
     /// Which of eight rays (the lanes of `active`, a packet given as two of four) some
     /// primitive occludes within `(t_min, t_max[lane])`: the bit set of those.
-    /// `leaf(prim, rays)` tests one primitive for the rays of the bit set `rays` (those
-    /// that entered its leaf and are not yet occluded) and returns those it occludes.
+    /// `leaf(prims, rays)` tests a leaf's primitives for the rays of the bit set `rays`
+    /// (those that entered the leaf and are not yet occluded) and returns those some
+    /// primitive occludes.
     ///
     /// The traversal is [`Bvh::closest8`]'s, but of two children it goes first to the
     /// farther: a shadow ray starts on a surface, so the subtree around its origin is
@@ -511,7 +536,7 @@ impl Bvh {
     /// primitive [`Bvh::any`] would give it until one occludes it, so the answer is the
     /// same as alone.
     #[inline]
-    pub fn any8<F: FnMut(u32, u32) -> u32>(
+    pub fn any8<F: FnMut(&[u32], u32) -> u32>(
         &self,
         rays: &[SlabRay4; 2],
         t_min: f64,
@@ -527,12 +552,12 @@ impl Bvh {
             &mut limits,
             active,
             #[inline(always)]
-            |prim, rays_in, limits| {
+            |prims, rays_in, limits| {
                 let open = rays_in & !occluded;
                 if open == 0 {
                     return;
                 }
-                let found = leaf(prim, open) & open;
+                let found = leaf(prims, open) & open;
                 occluded |= found;
                 for lane in lanes_of(found) {
                     limits[lane] = f64::NEG_INFINITY;
@@ -545,7 +570,7 @@ impl Bvh {
     /// [`Bvh::closest8`], testing each node's boxes with `pairs` (`rays` themselves, or
     /// the same rays in wider lanes).
     #[inline(always)]
-    fn traverse8<const FAR_FIRST: bool, P: PairTest8, F: FnMut(u32, u32, &mut [f64; 8])>(
+    fn traverse8<const FAR_FIRST: bool, P: PairTest8, F: FnMut(&[u32], u32, &mut [f64; 8])>(
         &self,
         rays: &[SlabRay4; 2],
         pairs: &P,
@@ -576,9 +601,11 @@ impl Bvh {
         loop {
             if cur & LEAF != 0 {
                 let (start, count) = self.leaves[(cur & !LEAF) as usize];
-                for &p in &self.order[start as usize..(start + count) as usize] {
-                    leaf(p, mask, t_max);
-                }
+                leaf(
+                    &self.order[start as usize..(start + count) as usize],
+                    mask,
+                    t_max,
+                );
                 limits = lanes8(t_max);
             } else {
                 let n = &self.packet[cur as usize];
@@ -775,12 +802,21 @@ impl Bvh {
     }
 }
 
-/// How a build splits: a primitive's `test_cost` (see [`Bvh::build`]), and the size
-/// of subtree from which its halves are built in parallel.
+/// How a build splits: a group's `test_cost` and the primitives a group holds (see
+/// [`Bvh::build_in_groups`]; one for [`Bvh::build`]), and the size of subtree from
+/// which its halves are built in parallel.
 #[derive(Debug, Clone, Copy, Default)]
 struct Split {
     test_cost: f64,
+    lanes: usize,
     parallel_from: usize,
+}
+
+impl Split {
+    /// The groups `n` primitives take.
+    fn groups(&self, n: usize) -> f64 {
+        n.div_ceil(self.lanes) as f64
+    }
 }
 
 /// The binary tree being built: nodes in depth-first order (a node, its first subtree,
@@ -913,7 +949,8 @@ impl Builder {
             if left_n == 0 || right_n[i] == 0 {
                 continue;
             }
-            let cost = left.half_area() * left_n as f64 + right_area[i] * right_n[i] as f64;
+            let cost = left.half_area() * self.split.groups(left_n)
+                + right_area[i] * self.split.groups(right_n[i]);
             if cost < best_cost {
                 best_cost = cost;
                 best_bin = i;
@@ -922,7 +959,7 @@ impl Builder {
         // In tests of a node's boxes, for a ray entering this node: a leaf tests all n;
         // a split tests the node's boxes, then the side it enters.
         let c = self.split.test_cost;
-        let leaf_cost = c * bounds.half_area() * n as f64;
+        let leaf_cost = c * bounds.half_area() * self.split.groups(n);
         let split_cost = bounds.half_area() + c * best_cost;
         if best_bin == 0 || (n <= MAX_LEAF_PRIMS && leaf_cost <= split_cost) {
             if n <= MAX_LEAF_PRIMS {
@@ -1011,6 +1048,7 @@ mod tests {
         };
         let at = |parallel_from| Split {
             test_cost: 2.0,
+            lanes: 1,
             parallel_from,
         };
         let build = |parallel_from| {
@@ -1154,6 +1192,56 @@ mod tests {
     }
 
     #[test]
+    fn leaves_counted_in_groups_are_fuller_and_start_a_group_each() {
+        // A grid of small boxes, the kind of scatter a mesh's triangles make.
+        let boxes: Vec<Aabb> = (0..2000)
+            .map(|i| {
+                let c = DVec3::new((i % 40) as f64, (i / 40) as f64 * 0.7, (i % 7) as f64 * 0.1);
+                Aabb {
+                    min: c,
+                    max: c + DVec3::splat(0.6),
+                }
+            })
+            .collect();
+        let alone = Bvh::build(&boxes, 1.0);
+        let grouped = Bvh::build_in_groups(&boxes, 2.0, 4);
+        assert!(
+            grouped.leaves.len() * 3 < alone.leaves.len() * 2,
+            "{} leaves in groups, {} alone",
+            grouped.leaves.len(),
+            alone.leaves.len()
+        );
+        for (tree, most) in [(grouped, 1.25), (alone, 1.75)] {
+            let prims = tree.order.clone();
+            let (bvh, held) = tree.into_slots(4);
+            // Every primitive in exactly one slot; each leaf's slots consecutive, in one
+            // group, holding its own primitives.
+            let mut seen = vec![0; boxes.len()];
+            for &p in held.iter().flatten() {
+                seen[p as usize] += 1;
+            }
+            assert!(seen.iter().all(|&n| n == 1));
+            assert!(
+                held.len() as f64 <= boxes.len() as f64 * most,
+                "{} slots",
+                held.len()
+            );
+            for &(first, count) in &bvh.leaves {
+                let slots = &bvh.order[first as usize..(first + count) as usize];
+                assert_eq!(slots[0] / 4, slots[slots.len() - 1] / 4, "{slots:?}");
+                for (k, &slot) in slots.iter().enumerate() {
+                    assert_eq!(slot, slots[0] + k as u32);
+                    assert_eq!(held[slot as usize], Some(prims[first as usize + k]));
+                }
+            }
+        }
+        // One lane a group: slots are the leaf order itself.
+        let (flat, held) = Bvh::build(&boxes, 1.0).into_slots(1);
+        assert_eq!(held.len(), boxes.len());
+        assert!(flat.order.iter().enumerate().all(|(k, &s)| s == k as u32));
+    }
+
+    #[test]
     fn identical_boxes_do_not_recurse_forever() {
         let boxes = vec![unit_box(DVec3::ZERO); 1000];
         let bvh = Bvh::build(&boxes, 1.0);
@@ -1266,7 +1354,7 @@ mod tests {
         slab: &[SlabRay4; 2],
         limits: &mut [f64; 8],
         active: u32,
-        leaf: impl FnMut(u32, u32, &mut [f64; 8]),
+        leaf: impl FnMut(&[u32], u32, &mut [f64; 8]),
     ) {
         #[cfg(target_arch = "x86_64")]
         if let Some(avx2) = Avx2::detect() {
@@ -1383,8 +1471,8 @@ mod tests {
                 let mut found = [[None; 8]; 3];
                 for (path, best) in found.iter_mut().enumerate() {
                     let mut limits = [f64::INFINITY; 8];
-                    let leaf = |i: u32, lanes: u32, limits: &mut [f64; 8]| {
-                        for lane in lanes_of(lanes) {
+                    let leaf = |prims: &[u32], lanes: u32, limits: &mut [f64; 8]| {
+                        for (&i, lane) in prims.iter().flat_map(|i| lanes_of(lanes).map(move |l| (i, l))) {
                             let (o, d) = rays[lane];
                             // The rule of `closest_of`, ray by ray.
                             if let Some(t) =
@@ -1439,10 +1527,10 @@ mod tests {
                 };
                 // Lanes shown a box: only active ones, and none once a box blocked it.
                 let (mut shown, mut blocked, mut shown_after) = (0u32, 0u32, 0u32);
-                let occluded = bvh.any8(&slab, 1e-9, reach, active, |i, lanes| {
+                let occluded = bvh.any8(&slab, 1e-9, reach, active, |prims, lanes| {
                     shown |= lanes;
                     shown_after |= lanes & blocked;
-                    let found = lanes_where(lanes, |lane| blocks(i, lane));
+                    let found = lanes_where(lanes, |lane| prims.iter().any(|&i| blocks(i, lane)));
                     blocked |= found;
                     found
                 });

@@ -308,8 +308,10 @@ impl World {
                 // Inlined into each traversal that calls it (the BVH has one per lane
                 // width).
                 #[inline(always)]
-                |i, active, limit| {
-                    self.consider8(i, rays, from_view, t_min, active, limit, &mut best)
+                |objects, active, limit| {
+                    for &i in objects {
+                        self.consider8(i, rays, from_view, t_min, active, limit, &mut best);
+                    }
                 },
             );
         }

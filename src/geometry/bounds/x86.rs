@@ -1,15 +1,16 @@
 //! A packet's box test in wider lanes: both children of a node for four rays in one
 //! pass of eight AVX2 lanes ([`SlabRay8`]), where [`SlabRay4`] takes two passes of
-//! four, and for eight rays in one pass of sixteen AVX-512 lanes ([`SlabRay16`]). Each
-//! is chosen at run time, on processors that have it, so that the release binary stays
-//! portable; the operations are [`SlabRay4::enter`]'s, lane for lane, so the results
-//! are the same bits.
+//! four, and for eight rays in one pass of sixteen AVX-512 lanes ([`SlabRay16`]); and
+//! four f64 lanes in one AVX register ([`Lanes4`] of [`Avx2`]). Each is chosen at run
+//! time, on processors that have it, so that the release binary stays portable; the
+//! operations are [`SlabRay4::enter`]'s (or one number's), lane for lane, so the
+//! results are the same bits.
 
 use std::arch::x86_64::*;
 
 use wide::f32x4;
 
-use super::{BoxPair32, GROW, PairTest, PairTest8, SHRINK, SlabRay4};
+use super::{BoxPair32, GROW, Lanes4, PairTest, PairTest8, SHRINK, SlabRay4};
 use wide::f32x8;
 
 /// A proof type that the processor has the instruction sets `$feature`, its `detect`,
@@ -110,6 +111,78 @@ impl PairTest for SlabRay8 {
     fn enter_pair(&self, b: &BoxPair32, t_min: f32, t_max: f32x4) -> [(u32, f32x4); 2] {
         // SAFETY: a `SlabRay8` exists only where the processor has AVX2 (`Avx2`).
         unsafe { self.enter_pair_avx2(b, t_min, t_max) }
+    }
+}
+
+/// Four f64 lanes in one AVX register. Made only by [`Avx2`]'s [`Lanes4`], so only
+/// where the processor has AVX2: each operation is one instruction of it.
+#[derive(Debug, Clone, Copy)]
+pub struct F64x4Avx(__m256d);
+
+/// An operator of [`F64x4Avx`] as its one AVX instruction.
+macro_rules! avx_operator {
+    ($trait:ident, $method:ident, $intrinsic:ident) => {
+        impl std::ops::$trait for F64x4Avx {
+            type Output = F64x4Avx;
+
+            #[inline(always)]
+            fn $method(self, rhs: F64x4Avx) -> F64x4Avx {
+                // SAFETY: an `F64x4Avx` exists only where the processor has AVX2.
+                F64x4Avx(unsafe { $intrinsic(self.0, rhs.0) })
+            }
+        }
+    };
+}
+
+avx_operator!(Add, add, _mm256_add_pd);
+avx_operator!(Sub, sub, _mm256_sub_pd);
+avx_operator!(Mul, mul, _mm256_mul_pd);
+avx_operator!(Div, div, _mm256_div_pd);
+
+/// The bit set of the lanes where comparison `P` of `a` and `b` holds.
+#[inline(always)]
+fn compared<const P: i32>(a: F64x4Avx, b: F64x4Avx) -> u32 {
+    // SAFETY: an `F64x4Avx` exists only where the processor has AVX2.
+    unsafe { _mm256_movemask_pd(_mm256_cmp_pd::<P>(a.0, b.0)) as u32 }
+}
+
+impl Lanes4 for Avx2 {
+    type V = F64x4Avx;
+
+    #[inline(always)]
+    fn splat(self, x: f64) -> F64x4Avx {
+        // SAFETY: an `Avx2` exists only where the processor has AVX2 (`detect`).
+        F64x4Avx(unsafe { _mm256_set1_pd(x) })
+    }
+
+    #[inline(always)]
+    fn load(self, x: &[f64; 4]) -> F64x4Avx {
+        F64x4Avx(bytemuck::cast(*x))
+    }
+
+    #[inline(always)]
+    fn store(self, v: F64x4Avx) -> [f64; 4] {
+        bytemuck::cast(v.0)
+    }
+
+    #[inline(always)]
+    fn ge(self, a: F64x4Avx, b: F64x4Avx) -> u32 {
+        compared::<_CMP_GE_OQ>(a, b)
+    }
+
+    #[inline(always)]
+    fn gt(self, a: F64x4Avx, b: F64x4Avx) -> u32 {
+        compared::<_CMP_GT_OQ>(a, b)
+    }
+
+    #[inline(always)]
+    fn le(self, a: F64x4Avx, b: F64x4Avx) -> u32 {
+        compared::<_CMP_LE_OQ>(a, b)
+    }
+
+    #[inline(always)]
+    fn ne(self, a: F64x4Avx, b: F64x4Avx) -> u32 {
+        compared::<_CMP_NEQ_UQ>(a, b)
     }
 }
 
