@@ -417,6 +417,30 @@ impl Bvh {
         &self,
         ray: &SlabRay,
         t_min: f64,
+        t_max: f64,
+        mut leaf: F,
+    ) -> f64 {
+        self.closest_by_leaf(
+            ray,
+            t_min,
+            t_max,
+            #[inline(always)]
+            |prims, mut t_max| {
+                for &p in prims {
+                    t_max = leaf(p, t_max);
+                }
+                t_max
+            },
+        )
+    }
+
+    /// [`Bvh::closest`], a leaf at a time: `leaf(prims, t_max)` tests the primitives
+    /// of a leaf and returns the new best `λ` (or `t_max` unchanged).
+    #[inline]
+    pub fn closest_by_leaf<F: FnMut(&[u32], f64) -> f64>(
+        &self,
+        ray: &SlabRay,
+        t_min: f64,
         mut t_max: f64,
         mut leaf: F,
     ) -> f64 {
@@ -432,9 +456,7 @@ impl Bvh {
         loop {
             if cur & LEAF != 0 {
                 let (start, count) = self.leaves[(cur & !LEAF) as usize];
-                for &p in &self.order[start as usize..(start + count) as usize] {
-                    t_max = leaf(p, t_max);
-                }
+                t_max = leaf(&self.order[start as usize..(start + count) as usize], t_max);
             } else {
                 let n = &self.inner[cur as usize];
                 let (h0, h1) = ray.enter2(&n.min, &n.max, t_min, t_max);
@@ -663,7 +685,41 @@ impl Bvh {
     /// [`WIDE_FROM`]) and the ray's numbers fit that test; otherwise the binary tree in
     /// double precision. Neither misses a box the ray enters, so the answer is the same.
     #[inline]
-    pub fn any<F: FnMut(u32) -> bool>(&self, ray: &Ray, t_min: f64, t_max: f64, leaf: F) -> bool {
+    pub fn any<F: FnMut(u32) -> bool>(
+        &self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        mut leaf: F,
+    ) -> bool {
+        self.any_by_leaf(
+            ray,
+            t_min,
+            t_max,
+            #[inline(always)]
+            |prims| {
+                // A loop, not `Iterator::any`: that was left a call, and the leaf
+                // function with it.
+                for &p in prims {
+                    if leaf(p) {
+                        return true;
+                    }
+                }
+                false
+            },
+        )
+    }
+
+    /// [`Bvh::any`], a leaf at a time: whether `leaf(prims)` is true for some leaf's
+    /// primitives.
+    #[inline]
+    pub fn any_by_leaf<F: FnMut(&[u32]) -> bool>(
+        &self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        leaf: F,
+    ) -> bool {
         let lanes = if self.wide.is_empty() {
             None
         } else {
@@ -678,7 +734,7 @@ impl Bvh {
     /// [`Bvh::any`] through the four-wide tree (which exists only for a tree of
     /// [`WIDE_FROM`] inner nodes or more, so never for an empty one).
     #[inline(always)]
-    fn any_wide<F: FnMut(u32) -> bool>(
+    fn any_wide<F: FnMut(&[u32]) -> bool>(
         &self,
         ray: &SlabRay4,
         t_min: f64,
@@ -733,23 +789,16 @@ impl Bvh {
         }
     }
 
-    /// Whether `leaf(prim)` is true for some primitive of leaf `reference`.
+    /// `leaf` of the primitives of leaf `reference`.
     #[inline(always)]
-    fn leaf_any<F: FnMut(u32) -> bool>(&self, reference: u32, leaf: &mut F) -> bool {
+    fn leaf_any<F: FnMut(&[u32]) -> bool>(&self, reference: u32, leaf: &mut F) -> bool {
         let (start, count) = self.leaves[(reference & !LEAF) as usize];
-        // A loop, not `Iterator::any`: that was left a call, and the leaf function
-        // with it.
-        for &p in &self.order[start as usize..(start + count) as usize] {
-            if leaf(p) {
-                return true;
-            }
-        }
-        false
+        leaf(&self.order[start as usize..(start + count) as usize])
     }
 
     /// [`Bvh::any`] through the binary tree, its boxes tested in double precision.
     #[inline(always)]
-    fn any_exact<F: FnMut(u32) -> bool>(
+    fn any_exact<F: FnMut(&[u32]) -> bool>(
         &self,
         ray: &SlabRay,
         t_min: f64,
@@ -794,8 +843,8 @@ impl Bvh {
     /// The boxes are tested in double precision, as built.
     pub fn candidates(&self, ray: &SlabRay, t_min: f64, t_max: f64) -> Vec<u32> {
         let mut out = Vec::new();
-        self.any_exact(ray, t_min, t_max, |p| {
-            out.push(p);
+        self.any_exact(ray, t_min, t_max, |prims| {
+            out.extend_from_slice(prims);
             false
         });
         out
@@ -1440,7 +1489,8 @@ mod tests {
                         "ray {:?} + λ {:?} to {}", o, d, t_max
                     );
                     let exact = SlabRay::new(o, d);
-                    prop_assert_eq!(bvh.any_exact(&exact, 1e-9, t_max, blocked), every);
+                    let blocked_in = |prims: &[u32]| prims.iter().any(|&i| blocked(i));
+                    prop_assert_eq!(bvh.any_exact(&exact, 1e-9, t_max, blocked_in), every);
                     // Every box entered is seen, not only the first that blocks.
                     let mut seen = Vec::new();
                     bvh.any(&ray, 1e-9, t_max, |i| {

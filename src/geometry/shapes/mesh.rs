@@ -143,16 +143,8 @@ impl CanonicalShape for Mesh {
             #[inline(always)]
             |slots, rays_in, limits| {
                 for lane in lanes_of(rays_in) {
-                    let mut limit = limits[lane];
-                    for (group, leaf_lanes, base) in a.groups_of(slots) {
-                        let (hits, t) = group.hits(&rays[lane], t_min);
-                        for j in lanes_of(hits & leaf_lanes) {
-                            let id = a.ids[base + j];
-                            let hit = Some(t[j]).filter(|&t| t <= limit);
-                            limit = keep_first(&mut best[lane], hit, id, limit);
-                        }
-                    }
-                    limits[lane] = limit;
+                    limits[lane] =
+                        a.closest_in_leaf(slots, &rays[lane], t_min, limits[lane], &mut best[lane]);
                 }
             },
         );
@@ -179,10 +171,7 @@ impl CanonicalShape for Mesh {
             #[inline(always)]
             |slots, rays_in| {
                 lanes_where(rays_in, |lane| {
-                    a.groups_of(slots).any(|(group, leaf_lanes, _)| {
-                        let (hits, t) = group.hits(&rays[lane], t_min);
-                        lanes_of(hits & leaf_lanes).any(|j| t[j] <= t_max[lane])
-                    })
+                    a.occludes_in_leaf(slots, &rays[lane], t_min, t_max[lane])
                 })
             },
         )
@@ -304,7 +293,9 @@ impl MeshAccel {
         })
     }
 
-    /// The closest triangle hit in `(t_min, t_max)`: `λ` and the triangle's index.
+    /// The closest triangle hit in `(t_min, t_max)`: `λ` and the triangle's index. A
+    /// leaf's triangles are tested together ([`MeshAccel::closest_in_leaf`]), or one
+    /// by one where `probe` records each test.
     #[inline]
     fn intersect<P: Probe>(
         &self,
@@ -315,24 +306,61 @@ impl MeshAccel {
     ) -> Option<(f64, u32)> {
         let slab = SlabRay::new(ray.origin, ray.dir);
         let mut best: Option<(f64, u32)> = None;
-        self.bvh.closest(&slab, t_min, t_max, |k, limit| {
-            let id = self.ids[k as usize];
-            let hit = moller_trumbore(&self.tri(k), ray, t_min, limit, id, probe);
-            keep_first(&mut best, hit, id, limit)
-        });
+        if probe.active() {
+            self.bvh.closest(&slab, t_min, t_max, |k, limit| {
+                let id = self.ids[k as usize];
+                let hit = moller_trumbore(&self.tri(k), ray, t_min, limit, id, probe);
+                keep_first(&mut best, hit, id, limit)
+            });
+        } else {
+            self.bvh
+                .closest_by_leaf(&slab, t_min, t_max, |slots, limit| {
+                    self.closest_in_leaf(slots, ray, t_min, limit, &mut best)
+                });
+        }
         best
+    }
+
+    /// The triangles of a leaf (its `slots`) for `ray`, each taken by [`keep_first`]
+    /// into `best` in slot order, as one at a time: the new limit.
+    #[inline(always)]
+    fn closest_in_leaf(
+        &self,
+        slots: &[u32],
+        ray: &Ray,
+        t_min: f64,
+        mut limit: f64,
+        best: &mut Option<(f64, u32)>,
+    ) -> f64 {
+        for (group, leaf_lanes, base) in self.groups_of(slots) {
+            let (hits, t) = group.hits(ray, t_min);
+            for j in lanes_of(hits & leaf_lanes) {
+                let hit = Some(t[j]).filter(|&t| t <= limit);
+                limit = keep_first(best, hit, self.ids[base + j], limit);
+            }
+        }
+        limit
     }
 
     /// Whether any triangle is hit in `(t_min, t_max)`.
     #[inline]
     fn occludes(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
-        self.bvh.any(
+        self.bvh.any_by_leaf(
             ray,
             t_min,
             t_max,
             #[inline(always)]
-            |k| moller_trumbore(&self.tri(k), ray, t_min, t_max, 0, &mut ()).is_some(),
+            |slots| self.occludes_in_leaf(slots, ray, t_min, t_max),
         )
+    }
+
+    /// Whether some triangle of a leaf (its `slots`) is hit in `(t_min, t_max)`.
+    #[inline(always)]
+    fn occludes_in_leaf(&self, slots: &[u32], ray: &Ray, t_min: f64, t_max: f64) -> bool {
+        self.groups_of(slots).any(|(group, leaf_lanes, _)| {
+            let (hits, t) = group.hits(ray, t_min);
+            lanes_of(hits & leaf_lanes).any(|j| t[j] <= t_max)
+        })
     }
 }
 
