@@ -386,6 +386,7 @@ impl Bvh {
     /// primitive for groups of four. Also, for each slot, the primitive stored there
     /// (`None`: an empty slot).
     pub fn into_slots(mut self, lanes: usize) -> (Bvh, Vec<Option<u32>>) {
+        let lanes = lanes.max(1);
         let mut held = Vec::with_capacity(self.order.len());
         for &(first, count) in &self.leaves {
             let used = held.len() % lanes;
@@ -864,7 +865,7 @@ struct Split {
 impl Split {
     /// The groups `n` primitives take.
     fn groups(&self, n: usize) -> f64 {
-        n.div_ceil(self.lanes) as f64
+        n.div_ceil(self.lanes.max(1)) as f64
     }
 }
 
