@@ -170,9 +170,13 @@ impl CanonicalShape for Mesh {
             active,
             #[inline(always)]
             |slots, rays_in| {
-                lanes_where(rays_in, |lane| {
-                    a.occludes_in_leaf(slots, &rays[lane], t_min, t_max[lane])
-                })
+                lanes_where(
+                    rays_in,
+                    // Left to itself, the compiler called this closure out of line,
+                    // compiled for no wider lanes, and the group's test from there.
+                    #[inline(always)]
+                    |lane| a.occludes_in_leaf(slots, &rays[lane], t_min, t_max[lane]),
+                )
             },
         )
     }
@@ -358,10 +362,18 @@ impl MeshAccel {
     /// Whether some triangle of a leaf (its `slots`) is hit in `(t_min, t_max)`.
     #[inline(always)]
     fn occludes_in_leaf(&self, slots: &[u32], ray: &Ray, t_min: f64, t_max: f64) -> bool {
-        self.groups_of(slots).any(|(group, leaf_lanes, _)| {
+        // Plain loops: through `Iterator::any` the compiler left a call to a `try_fold`
+        // compiled for no wider lanes than the release's, so the group's test behind it
+        // could not be inlined into a packet's traversal and was called out of line.
+        for (group, leaf_lanes, _) in self.groups_of(slots) {
             let (hits, t) = group.hits(ray, t_min);
-            lanes_of(hits & leaf_lanes).any(|j| t[j] <= t_max)
-        })
+            for j in lanes_of(hits & leaf_lanes) {
+                if t[j] <= t_max {
+                    return true;
+                }
+            }
+        }
+        false
     }
 }
 
