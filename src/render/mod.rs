@@ -202,8 +202,9 @@ impl Renderer {
             let hits = self
                 .world
                 .closest8(&rays, PRIMARY_LAMBDA_MIN, f64::INFINITY, bounded);
-            put_rows(p, rows, |k| {
-                hits[k].map(|h| self.hit_record::<Lecture>(&rays[k], &h))
+            put_rows(p, rows, |k, row| match &hits[k] {
+                None => row.push(None),
+                Some(h) => row.push(Some(self.hit_record::<Lecture>(&rays[k], h))),
             });
         })
     }
@@ -287,13 +288,20 @@ fn block_of((x, y, width, height): (u32, u32, u32, u32)) -> Rect {
     }
 }
 
-/// Appends packet `p`'s eight values, lane `k`'s as `f(k)` makes it, to `rows`: those
-/// of its first row to the first, of its second (if it has two) to the second.
+/// Appends packet `p`'s eight values to `rows`, lane `k`'s by `put(k, row)`: those of
+/// its first row to the first, of its second (if it has two) to the second.
+///
+/// `put` pushes, rather than returning a value to push, so that a value made in
+/// branches is pushed in each: a missed pixel's hit record (`None`, one byte) made as
+/// a value beside a hit's was written to the stack and copied whole into the row,
+/// each copy's load waiting for that byte's store.
 #[inline]
-fn put_rows<P>(p: Packet, rows: [&mut Vec<P>; 2], f: impl Fn(usize) -> P) {
+fn put_rows<P>(p: Packet, rows: [&mut Vec<P>; 2], mut put: impl FnMut(usize, &mut Vec<P>)) {
     let cols = p.cols() as usize;
     for (r, out) in rows.into_iter().enumerate().take(p.rows as usize) {
-        out.extend((r * cols..(r + 1) * cols).map(&f));
+        for k in r * cols..(r + 1) * cols {
+            put(k, out);
+        }
     }
 }
 
@@ -321,7 +329,7 @@ impl Kernel for ColourKernel<'_> {
                 return false;
             };
             *rays += n.0;
-            put_rows(p, out, |k| quantise(c[k], gamma));
+            put_rows(p, out, |k, row| row.push(quantise(c[k], gamma)));
             true
         });
     }
@@ -352,7 +360,7 @@ impl Kernel for LinearKernel<'_> {
                 return false;
             };
             *rays += n.0;
-            put_rows(p, out, |k| c[k].as_vec3().to_array());
+            put_rows(p, out, |k, row| row.push(c[k].as_vec3().to_array()));
             true
         });
     }
@@ -415,9 +423,9 @@ mod tests {
                 }
                 self.made.lock().expect("not poisoned").push(p);
                 *rays += 8;
-                put_rows(p, out, |k| {
+                put_rows(p, out, |k, row| {
                     let (x, y) = p.pixel(k);
-                    (x, y, true)
+                    row.push((x, y, true));
                 });
                 true
             });
