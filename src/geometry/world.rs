@@ -500,6 +500,18 @@ impl World {
 
     /// The full record of a hit found on `ray`.
     pub fn surface(&self, ray: &Ray, hit: &Hit) -> Surface {
+        self.record(ray, hit)
+    }
+
+    /// [`World::surface`] written into `out`, field by field, rather than returned to
+    /// be copied there (see `Renderer::put_hit_record`).
+    pub fn put_surface(&self, ray: &Ray, hit: &Hit, out: &mut Option<Surface>) {
+        *out = Some(self.record(ray, hit));
+    }
+
+    /// What [`World::surface`] and [`World::put_surface`] compute, inlined into each.
+    #[inline(always)]
+    fn record(&self, ray: &Ray, hit: &Hit) -> Surface {
         let s = &self.solids[hit.object as usize];
         let r = s.object_ray(ray, self.viewpoint == Some(ray.origin));
         let object_point = r.at(hit.lambda);

@@ -107,10 +107,20 @@ pub fn conventional_surface<C: Conventions>(t: &Transform, s: Surface) -> Surfac
     }
 }
 
+/// Whether hit data under conventions `C` is the world's record of a hit unchanged
+/// ([`conventional_hit`] gives it back as it is), as under the lecture's: a caller may
+/// then leave a record where the world wrote it.
+pub const fn hit_as_found<C: Conventions>() -> bool {
+    C::INVERSE_TRANSPOSE && C::NORMALISED && !C::UNIT_DIRECTION_LAMBDA
+}
+
 /// A primary ray's hit as hit data written under conventions `C` gives it: its normal as
 /// [`conventional_surface`] makes it, `λ` along `d/|d|` where `C` measures it so.
 #[inline(always)]
 pub fn conventional_hit<C: Conventions>(t: &Transform, ray: &Ray, s: Surface) -> Surface {
+    if hit_as_found::<C>() {
+        return s;
+    }
     let s = conventional_surface::<C>(t, s);
     if C::UNIT_DIRECTION_LAMBDA {
         Surface {

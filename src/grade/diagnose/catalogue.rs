@@ -347,3 +347,56 @@ conventions! {
     /// One bounce fewer.
     ShallowerByOne { EXTRA_DEPTH: i64 = -1 }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{Face, Ray, Surface, Transform};
+    use crate::render::shade::{Lecture, conventional_hit, hit_as_found};
+    use glam::DVec3;
+
+    /// The packets' hit data is left as the world wrote it where `hit_as_found`: so it
+    /// must hold for the lecture's conventions, and for none that changes a record.
+    #[test]
+    fn only_the_lectures_hit_data_is_taken_as_found() {
+        // Scaled unevenly and turned, so that carrying the normal by `T` or leaving it
+        // unnormalised changes it; a ray of length 2.5, so that `λ` along `d/|d|` does.
+        let t = Transform::scale(DVec3::new(1.0, 2.0, 3.0))
+            .then(&Transform::rotate(DVec3::new(1.0, 1.0, 0.0), 30.0));
+        let ray = Ray::new(DVec3::ZERO, DVec3::new(1.5, 0.0, 2.0));
+        let s = Surface {
+            lambda: 2.0,
+            object: 3,
+            point: DVec3::new(3.0, 0.0, 4.0),
+            object_point: DVec3::new(0.5, 0.5, 0.0),
+            normal: DVec3::new(0.0, 0.6, -0.8),
+            front: true,
+            face: Some(Face::PosY),
+        };
+        assert!(hit_as_found::<Lecture>());
+        assert_eq!(conventional_hit::<Lecture>(&t, &ray, s), s);
+        fn changes<C: Conventions>(t: &Transform, ray: &Ray, s: Surface) -> bool {
+            conventional_hit::<C>(t, ray, s) != s
+        }
+        for (name, as_found, changed) in [
+            (
+                "UnitLambda",
+                hit_as_found::<UnitLambda>(),
+                changes::<UnitLambda>(&t, &ray, s),
+            ),
+            (
+                "ForwardNormals",
+                hit_as_found::<ForwardNormals>(),
+                changes::<ForwardNormals>(&t, &ray, s),
+            ),
+            (
+                "RawNormals",
+                hit_as_found::<RawNormals>(),
+                changes::<RawNormals>(&t, &ray, s),
+            ),
+        ] {
+            assert!(!as_found, "{name} is not the lecture's hit data");
+            assert!(changed, "{name} changes this record");
+        }
+    }
+}
