@@ -115,8 +115,9 @@ impl Renderer {
     ///
     /// A record made by a call and then copied into its row was loaded, in part, as a
     /// word its maker wrote in pieces (`object`, `front`, `face`), and each such load
-    /// waited for those stores to be written out: 64 % of the tile loop's own samples
-    /// in `classic`'s hit data. Not even copied onto itself, where `C` leaves it.
+    /// waited for those stores to be written out: about two thirds of the tile loop's
+    /// own samples in `classic`'s hit data. Not even copied onto itself, where `C`
+    /// leaves it.
     #[inline(always)]
     fn put_hit_record<C: Conventions>(&self, ray: &Ray, h: &Hit, slot: &mut Option<Surface>) {
         self.world.put_surface(ray, h, slot);
