@@ -95,23 +95,16 @@ impl Renderer {
     #[inline]
     pub fn pixel_hit_as<C: Conventions>(&self, u: u32, v: u32) -> Option<Surface> {
         let ray = self.camera.pixel_ray::<C>(u, v);
-        self.world
-            .closest(&ray, PRIMARY_LAMBDA_MIN, f64::INFINITY)
-            .map(|h| self.hit_record::<C>(&ray, &h))
+        let mut record = None;
+        if let Some(h) = self.world.closest(&ray, PRIMARY_LAMBDA_MIN, f64::INFINITY) {
+            self.put_hit_record::<C>(&ray, &h, &mut record);
+        }
+        record
     }
 
-    /// The hit data of primary ray `ray`'s first hit `h`, under conventions `C`.
-    #[inline]
-    fn hit_record<C: Conventions>(&self, ray: &Ray, h: &Hit) -> Surface {
-        shade::conventional_hit::<C>(
-            &self.scene.objects[h.object as usize].transform,
-            ray,
-            self.world.surface(ray, h),
-        )
-    }
-
-    /// [`Renderer::hit_record`] written into `slot` by the world ([`World::put_surface`])
-    /// and, unless conventions `C` take it as it is, changed there.
+    /// The hit data of primary ray `ray`'s first hit `h` under conventions `C`, written
+    /// into `slot` by the world ([`World::put_surface`]) and, unless `C` takes it as it
+    /// is, changed there.
     ///
     /// A record made by a call and then copied into its row was loaded, in part, as a
     /// word its maker wrote in pieces (`object`, `front`, `face`), and each such load
