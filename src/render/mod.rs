@@ -4,6 +4,7 @@
 
 pub mod camera;
 pub mod cost;
+pub mod quantise;
 pub mod rect;
 pub mod shade;
 pub mod tiles;
@@ -16,8 +17,9 @@ use crate::geometry::{Hit, Ray, Surface, World, ray::PRIMARY_LAMBDA_MIN};
 use crate::scene::Scene;
 pub use camera::PrimaryRays;
 pub use cost::{CostError, Estimate, RayBudget, TooCostly, Work};
+pub use quantise::{quantise, quantise8};
 pub use rect::{OutsideFrame, ParseRectError, Rect, region_in_frame};
-pub use shade::{Conventions, Lecture, RayCount, Shader, quantise};
+pub use shade::{Conventions, Lecture, RayCount, Shader};
 pub use tiles::{
     BAND_PIXELS, Cancel, DEFAULT_TILE_PX, KERNEL_ROWS, Kernel, PACKET_PIXELS, RenderStats,
     Scheduler, SinkClosed, Step, Stopped, Tile, TileCursor, TileShape, TileSink, run, trace_tile,
@@ -348,7 +350,8 @@ impl Kernel for ColourKernel<'_> {
                 return false;
             };
             *rays += n.0;
-            put_rows(p, out, |k, row| row.push(quantise(c[k], gamma)));
+            let q = quantise8(&c, gamma);
+            put_rows(p, out, |k, row| row.push(q[k]));
             true
         });
     }

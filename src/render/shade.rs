@@ -641,28 +641,6 @@ impl Shader<'_> {
     }
 }
 
-/// Linear colour to 8 bits: optional gamma, then `round(255 · clamp(c, 0, 1))`.
-#[inline]
-pub fn quantise(c: DVec3, gamma: Option<f64>) -> [u8; 3] {
-    let c = match gamma {
-        Some(g) => DVec3::new(c.x.powf(1.0 / g), c.y.powf(1.0 / g), c.z.powf(1.0 / g)),
-        None => c,
-    };
-    let q = |x: f64| round_half_up_u8(255.0 * x.clamp(0.0, 1.0));
-    [q(c.x), q(c.y), q(c.z)]
-}
-
-/// `y.round() as u8` for `y` in `[0, 255]` (or NaN, giving 0), without the call to the
-/// C library's `round` that `f64::round` compiles to on the baseline x86-64: it is a
-/// visible share of a render's per-pixel cost. Exact: for `y ≥ 1` the truncation `i`
-/// is within a factor of two of `y`, so `y − i` is computed without rounding
-/// (Sterbenz), and half rounds away from zero as `f64::round` does.
-#[inline(always)]
-fn round_half_up_u8(y: f64) -> u8 {
-    let i = y as u32;
-    (i + (y - i as f64 >= 0.5) as u32) as u8
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -719,27 +697,6 @@ mod tests {
         }
     }
 
-    /// The fast rounding is `f64::round` on every value quantising can give it, at and
-    /// around every half-integer and integer.
-    #[test]
-    fn fast_rounding_is_f64_round() {
-        let mut ys = vec![0.0, 255.0, f64::MIN_POSITIVE, 0.49999999999999994];
-        for k in 0..=255 {
-            for y in [k as f64, k as f64 + 0.5] {
-                let (mut lo, mut hi) = (y, y);
-                for _ in 0..4 {
-                    ys.extend([lo, hi]);
-                    (lo, hi) = (lo.next_down(), hi.next_up());
-                }
-            }
-        }
-        ys.extend((0..100_000).map(|i| i as f64 * (255.0 / 99_999.0)));
-        for y in ys.into_iter().filter(|y| (0.0..=255.0).contains(y)) {
-            assert_eq!(round_half_up_u8(y), y.round() as u8, "{y:e}");
-        }
-        assert_eq!(round_half_up_u8(f64::NAN), f64::NAN.round() as u8);
-    }
-
     /// A light's specular term where `r·v < 0` is +0 for a shininess above 0 and the
     /// whole `L.colour ⊙ m.specular` for a shininess of 0 (`0⁰ = 1`); where `r·v > 0`
     /// it is `(r·v)^shininess`.
@@ -791,11 +748,5 @@ mod tests {
             assert_eq!(t.specular, colour * m.specular * t.r_dot_v.powf(shininess));
             assert!(t.specular.min_element() > 0.0);
         }
-    }
-
-    #[test]
-    fn quantise_rounds_and_clamps() {
-        assert_eq!(quantise(DVec3::new(0.5, 2.0, -1.0), None), [128, 255, 0]);
-        assert_eq!(quantise(DVec3::splat(0.25), Some(2.0)), [128, 128, 128]);
     }
 }
