@@ -4,9 +4,10 @@
 //!
 //! - tiles: the band being filled (at most [`BAND_PIXELS`] pixels, or one tile when
 //!   tiles are larger), the tiles finished ahead of a slower one (`window` of them) and
-//!   those being traced (`lanes`), each pixel as the assembler holds it; for NPY also
-//!   the encoded tiles queued for the worker writing ([`QUEUED_TILES`]) and the spent
-//!   buffers kept for reuse ([`QUEUED_TILES`] of them, or a band's records);
+//!   those being traced (`lanes`), each pixel as the assembler holds it; for a PNG
+//!   also the tiles queued for the worker encoding ([`QUEUED_TILES`]), for NPY the
+//!   encoded tiles queued for the worker writing and the spent buffers kept for reuse
+//!   ([`QUEUED_TILES`] of them, or a band's records);
 //! - encoded bytes: what one tile releases at once (a band's records), the pieces the
 //!   sinks build ([`PIECE_BYTES`]), and what may wait for the client before the render
 //!   parks (`in_flight_bytes`, the body's bound);
@@ -59,12 +60,13 @@ pub fn footprint(
     let lanes = (LANES_PER_THREAD * threads.max(1)) as u64;
     let window = WINDOW_PER_LANE as u64 * lanes;
     let band = BAND_PIXELS.max(tile);
-    // NPY queues encoded tiles for the worker writing, and keeps spent buffers: as
-    // many tiles as it queues, or a band's records.
-    let (queued, spare_band) = if format == Some(HitFormat::Npy) {
-        (2 * QUEUED_TILES as u64, band)
-    } else {
-        (0, 0)
+    // A PNG queues tiles for the worker encoding; NPY queues encoded tiles for the
+    // worker writing, and keeps spent buffers: as many tiles as it queues, or a band's
+    // records.
+    let (queued, spare_band) = match format {
+        None => (QUEUED_TILES as u64, 0),
+        Some(HitFormat::Npy) => (2 * QUEUED_TILES as u64, band),
+        Some(_) => (0, 0),
     };
     let tiles = (band + spare_band + (window + lanes + queued) * tile) * held;
     let written = band * encoded + PIECE_BYTES as u64 + in_flight_bytes as u64;

@@ -6,8 +6,9 @@
 //! frame is never built in one buffer).
 
 use std::io::{self, Write};
-use std::sync::{Arc, Mutex, TryLockError};
+use std::sync::{Arc, Mutex};
 
+use super::handoff::Handoff;
 use super::rows::{PIECE_BYTES, QUEUED_TILES, RowAssembler};
 use crate::format::npy::{NPY_RECORD_BYTES, npy_header, npy_record_bytes};
 use crate::format::{HitFormat, PixelHit, csv, json, ndjson};
@@ -34,10 +35,8 @@ pub struct HitSink<W: Write + Send> {
 /// What NPY workers hand over between them.
 #[derive(Default)]
 struct NpyQueue {
-    /// Encoded tiles waiting for whichever worker holds the state to write them, so a
-    /// worker whose tile is encoded goes back to tracing instead of waiting for the
-    /// writer (at most [`QUEUED_TILES`]; past that, workers wait as before).
-    queue: Mutex<Vec<RecordTile>>,
+    /// Encoded tiles waiting for whichever worker holds the state to write them.
+    queue: Handoff<[u8; NPY_RECORD_BYTES]>,
     /// Record buffers of tiles already written, reused for the next tiles.
     spare: Mutex<Vec<Vec<[u8; NPY_RECORD_BYTES]>>>,
 }
@@ -80,55 +79,36 @@ impl<W: Write + Send> HitSink<W> {
         })
     }
 
-    /// Writes the queued NPY tiles: waits for the writer when `wait`, else leaves them
-    /// to the worker writing now. Whoever writes looks at the queue again once it has
-    /// let the writer go, so no tile queued meanwhile is left behind.
+    /// Writes the queued NPY tiles ([`Handoff::drain`]).
     fn drain_records(&self, wait: bool) -> Result<(), SinkClosed> {
-        let mut batch = Vec::new();
-        loop {
-            let mut guard = if wait {
-                self.state.lock().map_err(closed)?
-            } else {
-                match self.state.try_lock() {
-                    Ok(g) => g,
-                    Err(TryLockError::WouldBlock) => return Ok(()),
-                    Err(TryLockError::Poisoned(e)) => return Err(closed(e)),
-                }
-            };
-            let HitState { out, records, .. } = &mut *guard;
-            loop {
-                std::mem::swap(&mut batch, &mut *self.npy.queue.lock().map_err(closed)?);
-                if batch.is_empty() {
-                    break;
-                }
-                for tile in batch.drain(..) {
-                    records
-                        .push_reclaiming(
-                            tile,
-                            |_, _, segments| {
-                                for seg in segments {
-                                    for piece in seg.chunks(PIECE_BYTES / NPY_RECORD_BYTES) {
-                                        out.write_all(piece.as_flattened())?;
-                                    }
-                                }
-                                Ok::<(), io::Error>(())
-                            },
-                            |pixels| {
-                                if let Ok(mut spare) = self.npy.spare.lock()
-                                    && keeps_spare(&spare, &pixels)
-                                {
-                                    spare.push(pixels);
-                                }
-                            },
-                        )
-                        .map_err(closed)?;
-                }
-            }
-            drop(guard);
-            if self.npy.queue.lock().map_err(closed)?.is_empty() {
-                return Ok(());
-            }
-        }
+        self.npy.queue.drain(&self.state, wait, |state, tile| {
+            self.write_records(state, tile)
+        })
+    }
+
+    /// Writes an NPY tile's records as its rows can leave, and keeps its spent buffer.
+    fn write_records(&self, state: &mut HitState<W>, tile: RecordTile) -> Result<(), SinkClosed> {
+        let HitState { out, records, .. } = state;
+        records
+            .push_reclaiming(
+                tile,
+                |_, _, segments| {
+                    for seg in segments {
+                        for piece in seg.chunks(PIECE_BYTES / NPY_RECORD_BYTES) {
+                            out.write_all(piece.as_flattened())?;
+                        }
+                    }
+                    Ok::<(), io::Error>(())
+                },
+                |pixels| {
+                    if let Ok(mut spare) = self.npy.spare.lock()
+                        && keeps_spare(&spare, &pixels)
+                    {
+                        spare.push(pixels);
+                    }
+                },
+            )
+            .map_err(closed)
     }
 
     /// Writes the closing bytes and flushes the writer, once every row is out.
@@ -249,16 +229,14 @@ impl<W: Write + Send> TileSink<Option<Surface>> for HitSink<W> {
                 records.extend(tile.pixels.iter().enumerate().map(|(k, s)| {
                     npy_record_bytes(r.x + k as u32 % r.width, r.y + k as u32 / r.width, s)
                 }));
-                let queued = {
-                    let mut queue = self.npy.queue.lock().map_err(closed)?;
-                    queue.push(Tile {
-                        rect: r,
-                        pixels: records,
-                        rays: tile.rays,
-                    });
-                    queue.len()
+                let encoded = Tile {
+                    rect: r,
+                    pixels: records,
+                    rays: tile.rays,
                 };
-                self.drain_records(queued > QUEUED_TILES)
+                self.npy.queue.hand(&self.state, encoded, |state, tile| {
+                    self.write_records(state, tile)
+                })
             }
         }
     }

@@ -42,7 +42,7 @@ pub const LANES_PER_THREAD: usize = 1;
 /// How far (in tiles) a render may run ahead of its oldest tile being traced, per lane.
 pub const WINDOW_PER_LANE: usize = 4;
 
-/// The most encoded tiles a sink queues for the worker writing now before the next
+/// The most tiles a sink queues for the worker writing now before the next
 /// worker waits for it, and the most spent buffers it keeps for reuse.
 pub const QUEUED_TILES: usize = 4;
 
