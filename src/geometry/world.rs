@@ -388,16 +388,27 @@ impl World {
             return true;
         }
         let mut found = None;
-        let mut blocks = |i: u32| {
-            let b = test(i);
-            if b {
-                found = Some(i);
-            }
-            b
-        };
         let blocked = match self.lone() {
-            Some(i) => blocks(i),
-            None => self.bvh.any(ray, t_min, t_max, &mut blocks),
+            Some(i) => {
+                found = test(i).then_some(i);
+                found.is_some()
+            }
+            // Always inlined: left a call (the three uses of the test were too many
+            // for the inliner), each primitive tested paid for it. Render instructions
+            // −2.4 % on spheres-1k, −3.4 % on cubes-10k; trace −2.6 % on spheres-100k.
+            None => self.bvh.any(
+                ray,
+                t_min,
+                t_max,
+                #[inline(always)]
+                |i| {
+                    let b = test(i);
+                    if b {
+                        found = Some(i);
+                    }
+                    b
+                },
+            ),
         };
         *hint = found;
         blocked
