@@ -249,7 +249,6 @@ mod tests {
     use crate::geometry::Face;
     use crate::scene::Limits;
     use glam::DVec3;
-    use std::sync::atomic::Ordering;
 
     /// A made-up first hit for every pixel: misses, hits with and without a face.
     fn surface(u: u32, v: u32) -> Option<Surface> {
@@ -278,18 +277,7 @@ mod tests {
         };
         let write = |threads: usize| {
             let sink = HitSink::new(scene.clone(), HitFormat::Npy, Vec::new(), region).unwrap();
-            let mut tiles = sink.tile_shape(region, 3).cut(region);
-            tiles.reverse();
-            let next = std::sync::atomic::AtomicUsize::new(0);
-            std::thread::scope(|s| {
-                for _ in 0..threads {
-                    s.spawn(|| {
-                        while let Some(&t) = tiles.get(next.fetch_add(1, Ordering::Relaxed)) {
-                            sink.tile(Tile::filled(t, surface)).unwrap();
-                        }
-                    });
-                }
-            });
+            crate::output::feed_from_threads(&sink, region, 3, threads, surface);
             sink.finish().unwrap();
             sink.into_writer().unwrap()
         };

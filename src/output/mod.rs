@@ -18,3 +18,29 @@ pub use frame::FrameSink;
 pub use hits::HitSink;
 pub use png::PngSink;
 pub use rows::RowAssembler;
+
+/// Hands `sink` the tiles it asks for over `region` (of about `tile_px²` pixels), the
+/// last first, from `threads` threads taking them in turn, each pixel `pixel(u, v)`:
+/// as a render's workers would, in an order that keeps rows waiting.
+#[cfg(test)]
+pub(crate) fn feed_from_threads<T: Send, S: crate::render::TileSink<T>>(
+    sink: &S,
+    region: crate::render::Rect,
+    tile_px: u32,
+    threads: usize,
+    pixel: impl Fn(u32, u32) -> T + Sync,
+) {
+    use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
+    let mut tiles = sink.tile_shape(region, tile_px).cut(region);
+    tiles.reverse();
+    let next = AtomicUsize::new(0);
+    std::thread::scope(|s| {
+        for _ in 0..threads {
+            s.spawn(|| {
+                while let Some(&t) = tiles.get(next.fetch_add(1, Relaxed)) {
+                    sink.tile(crate::render::Tile::filled(t, &pixel)).unwrap();
+                }
+            });
+        }
+    });
+}

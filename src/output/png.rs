@@ -130,7 +130,6 @@ fn write_tile<W: Write>(state: &mut State<W>, tile: Tile<[u8; 3]>) -> Result<(),
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::sync::atomic::Ordering::Relaxed;
     use std::sync::{Arc, Mutex};
 
     /// A writer whose bytes stay readable after the sink is done with it.
@@ -168,18 +167,7 @@ mod tests {
         let write = |threads: usize| {
             let out = Shared::default();
             let sink = PngSink::new(out.clone(), region).unwrap();
-            let mut tiles = sink.tile_shape(region, 3).cut(region);
-            tiles.reverse();
-            let next = std::sync::atomic::AtomicUsize::new(0);
-            std::thread::scope(|s| {
-                for _ in 0..threads {
-                    s.spawn(|| {
-                        while let Some(&t) = tiles.get(next.fetch_add(1, Relaxed)) {
-                            sink.tile(Tile::filled(t, colour)).unwrap();
-                        }
-                    });
-                }
-            });
+            crate::output::feed_from_threads(&sink, region, 3, threads, colour);
             sink.finish().unwrap();
             out.0.lock().unwrap().clone()
         };
