@@ -497,7 +497,8 @@ impl SlabRay4 {
         let mut up = [[0f32; 4]; 3];
         let mut far = false;
         for a in 0..3 {
-            let o = rays.map(|r| r.origin[a]);
+            // Indexed, not `rays.map`: that copied the four rays for each axis.
+            let o: [f64; 4] = std::array::from_fn(|k| rays[k].origin[a]);
             far |= !o.iter().all(|&o| near(o));
             down[a] = o.map(round_down);
             up[a] = o.map(round_up);

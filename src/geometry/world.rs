@@ -263,16 +263,19 @@ impl World {
     /// the one it finds alone, bit for bit. Rays whose numbers the packet's
     /// single-precision test does not take are traced one at a time.
     ///
+    /// Only the rays of `active` (a bit a lane) are traced; the others find `None`, but
+    /// must still be rays the packet's test takes (a copy of an active one will do).
     /// `bounded` false says the caller knows that no ray of the packet meets
     /// [`World::bounds`]: only the unbounded objects are tested.
     pub fn closest8(
         &self,
         rays: &[Ray; 8],
+        active: u32,
         t_min: f64,
         t_max: f64,
         bounded: bool,
     ) -> [Option<Hit>; 8] {
-        if !bounded && self.unbounded.is_empty() {
+        if active == 0 || !bounded && self.unbounded.is_empty() {
             return [None; 8];
         }
         let (lone, slab) = match self.lone() {
@@ -280,7 +283,13 @@ impl World {
             Some(i) => (Some(i), None),
             None => match SlabRay4::pair(rays) {
                 Some(slab) => (None, Some(slab)),
-                None => return rays.map(|r| self.closest(&r, t_min, t_max)),
+                None => {
+                    let mut best = [None; 8];
+                    for lane in lanes_of(active) {
+                        best[lane] = self.closest(&rays[lane], t_min, t_max);
+                    }
+                    return best;
+                }
             },
         };
         let mut from_view = [false; 8];
@@ -290,21 +299,21 @@ impl World {
         let mut best: [Option<Hit>; 8] = [None; 8];
         let mut limit = [t_max; 8];
         for &i in &self.unbounded {
-            for lane in 0..8 {
+            for lane in lanes_of(active) {
                 let (r, below) = (&rays[lane], limit[lane].next_up());
                 let found = self.intersect_unbounded(i, r, from_view[lane], t_min, below, &mut ());
                 limit[lane] = keep_first(&mut best[lane], i, found, limit[lane]);
             }
         }
         if let Some(i) = lone {
-            self.consider8(i, rays, from_view, t_min, 0xff, &mut limit, &mut best);
+            self.consider8(i, rays, from_view, t_min, active, &mut limit, &mut best);
         }
         if let Some(slab) = slab {
             self.bvh.closest8::<false, _>(
                 &slab,
                 t_min,
                 &mut limit,
-                0xff,
+                active,
                 // Inlined into each traversal that calls it (the BVH has one per lane
                 // width).
                 #[inline(always)]

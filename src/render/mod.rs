@@ -217,7 +217,7 @@ impl Renderer {
             let rays = self.pixel_rays8(p);
             let hits = self
                 .world
-                .closest8(&rays, PRIMARY_LAMBDA_MIN, f64::INFINITY, bounded);
+                .closest8(&rays, 0xff, PRIMARY_LAMBDA_MIN, f64::INFINITY, bounded);
             put_rows(p, rows, |k, row| match &hits[k] {
                 None => row.push(None),
                 Some(h) => {
@@ -266,7 +266,7 @@ impl Renderer {
         let primary = self.pixel_rays8(p);
         let hits = self
             .world
-            .closest8(&primary, PRIMARY_LAMBDA_MIN, f64::INFINITY, bounded);
+            .closest8(&primary, 0xff, PRIMARY_LAMBDA_MIN, f64::INFINITY, bounded);
         Some(shader.shade8(&primary, hits, rays))
     }
 }

@@ -40,9 +40,18 @@ fn random_scene(seed: u64, n: usize, size: u32) -> Value {
     let mut objects = Vec::new();
     for i in 0..n {
         let shape = SHAPES[if i == n - 1 { 6 } else { i % 6 }];
+        // A quarter mirrors, a quarter glass (half of that mirroring too), so that hits
+        // send reflected rays, refracted ones and both.
+        let mirror = if i % 4 == 0 || i % 8 == 1 { 0.3 } else { 0.0 };
+        let transmission = if i % 4 == 1 { 0.6 } else { 0.0 };
         let mut o = json!({
             "shape": shape,
-            "material": {"diffuse": r.v3(0.1, 0.9), "mirror": if i % 4 == 0 { [0.3, 0.3, 0.3] } else { [0.0; 3] }},
+            "material": {
+                "diffuse": r.v3(0.1, 0.9),
+                "mirror": [mirror, mirror, mirror],
+                "transmission": [transmission, transmission, transmission],
+                "ior": 1.5
+            },
             "transform": [
                 {"scale": r.v3(0.2, 1.2)},
                 {"rotate": {"axis": r.v3(-1.0, 1.0), "degrees": r.range(0.0, 360.0)}},
@@ -50,8 +59,10 @@ fn random_scene(seed: u64, n: usize, size: u32) -> Value {
             ]
         });
         if shape == "plane" {
+            // A floor below the objects (camera y points down), falling away from the
+            // camera, so that the objects stand in front of it.
             o["transform"] =
-                json!([{"rotate": {"axis": "x", "degrees": 80}}, {"translate": [0, 5, 0]}]);
+                json!([{"rotate": {"axis": "x", "degrees": -10}}, {"translate": [0, 5, 0]}]);
         }
         if shape == "mesh" {
             let positions: Vec<[f64; 3]> = (0..12).map(|_| r.v3(-1.0, 1.0)).collect();
@@ -177,6 +188,9 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
         assert_eq!(r.world.traces_shadow_packets(), seed == 35);
         let (w, h) = (r.scene.width, r.scene.height);
         let (mut hits, mut skipped) = (0, 0);
+        // Packets by how many of their pixels' first hits send a secondary ray of each
+        // branch (reflection, refraction): one lane alone, or two and more.
+        let mut sending = [[0; 2]; 2];
         // Packets of both shapes: eight pixels of a row, and four of each of two rows.
         for rows in [1, 2] {
             for v in (0..h - (rows - 1)).step_by(rows as usize) {
@@ -213,6 +227,20 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                     let packet = [first, second].concat();
                     assert_eq!(packet, alone, "seed {seed} {p:?}");
                     hits += alone.iter().flatten().count();
+                    for (branch, sends) in sending.iter_mut().enumerate() {
+                        let lanes = alone
+                            .iter()
+                            .flatten()
+                            .filter(|s| {
+                                let object = &r.scene.objects[s.object as usize];
+                                let m = &r.scene.materials[object.material as usize];
+                                [m.mirror, m.transmission][branch] != DVec3::ZERO
+                            })
+                            .count();
+                        if lanes > 0 {
+                            sends[usize::from(lanes > 1)] += 1;
+                        }
+                    }
                     let mut n = raytile::render::RayCount(0);
                     let colours = r
                         .pixel_colours8(&shader, p, bounded, &mut n)
@@ -231,6 +259,14 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
             hits > (2 * w * h / 10) as usize,
             "seed {seed}: only {hits} hits"
         );
+        // Secondary rays are traced as packets, or alone where one lane sends one.
+        if seed != 35 {
+            assert!(
+                sending.iter().flatten().all(|&n| n > 0),
+                "seed {seed}: packets sending one and several secondary rays of each \
+                 branch: {sending:?}"
+            );
+        }
         // Around the height field alone there is sky: packets there test no object.
         assert!(seed != 35 || skipped > 0, "no packet skipped the objects");
         // Eight unrelated rays at a time: a packet that parts at once.
@@ -242,7 +278,7 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                     DVec3::from(rng.v3(-1.0, 1.0)),
                 )
             });
-            let eight = r.world.closest8(&rays, 1e-9, f64::INFINITY, true);
+            let eight = r.world.closest8(&rays, 0xff, 1e-9, f64::INFINITY, true);
             for (k, ray) in rays.iter().enumerate() {
                 assert_eq!(
                     eight[k],
@@ -257,7 +293,7 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
             // are traced one at a time, with the same answers.
             let mut flat = rays;
             flat[2 + 4 * (rng.0 as usize % 2)].dir.y = 0.0;
-            let eight = r.world.closest8(&flat, 1e-9, f64::INFINITY, true);
+            let eight = r.world.closest8(&flat, 0xff, 1e-9, f64::INFINITY, true);
             for (k, ray) in flat.iter().enumerate() {
                 assert_eq!(
                     eight[k],
