@@ -79,9 +79,10 @@ impl<W: Write + Send> HitSink<W> {
         })
     }
 
-    /// Writes the queued NPY tiles ([`Handoff::drain`]).
-    fn drain_records(&self, wait: bool) -> Result<(), SinkClosed> {
-        self.npy.queue.drain(&self.state, wait, |state, tile| {
+    /// Writes every queued NPY tile, waiting for the writer if another worker holds it
+    /// ([`Handoff::drain`]; a worker that hands a tile drains without waiting).
+    fn drain_records(&self) -> Result<(), SinkClosed> {
+        self.npy.queue.drain(&self.state, true, |state, tile| {
             self.write_records(state, tile)
         })
     }
@@ -119,8 +120,7 @@ impl<W: Write + Send> HitSink<W> {
             .map_err(|_| io::Error::other("a worker panicked while writing"))?;
         if self.format == HitFormat::Npy {
             drop(s);
-            self.drain_records(true)
-                .map_err(|e| io::Error::other(e.0))?;
+            self.drain_records().map_err(|e| io::Error::other(e.0))?;
             s = self
                 .state
                 .lock()
@@ -306,14 +306,14 @@ mod tests {
         for &t in &tiles[..16] {
             sink.tile(Tile::filled(t, surface)).unwrap();
         }
-        sink.drain_records(true).unwrap();
+        sink.drain_records().unwrap();
         let kept = |sink: &HitSink<Vec<u8>>| sink.npy.spare.lock().unwrap().len();
         assert_eq!(kept(&sink), 16, "every buffer of the first band is kept");
         // The second band is encoded into them, and leaves as many.
         for &t in &tiles[16..] {
             sink.tile(Tile::filled(t, surface)).unwrap();
         }
-        sink.drain_records(true).unwrap();
+        sink.drain_records().unwrap();
         assert_eq!(kept(&sink), 16);
         sink.finish().unwrap();
     }
