@@ -89,7 +89,6 @@ impl<T> Handoff<T> {
 mod tests {
     use super::*;
     use crate::render::Rect;
-    use std::sync::Arc;
     use std::sync::mpsc;
     use std::time::Duration;
 
@@ -120,17 +119,16 @@ mod tests {
     /// on; the worker writing takes it on its next look at the queue.
     #[test]
     fn a_busy_writer_takes_the_tiles_handed_meanwhile() {
-        let handoff = Arc::new(Handoff::default());
-        let writer = Arc::new(Mutex::new(Vec::new()));
+        let handoff = Handoff::default();
+        let writer = Mutex::new(Vec::new());
         let busy = writer.lock().unwrap();
-        let (h, w) = (handoff.clone(), writer.clone());
-        std::thread::spawn(move || {
-            for x in 0..QUEUED_TILES as u32 {
-                h.hand(&w, tile(x), append).unwrap();
-            }
-        })
-        .join()
-        .unwrap();
+        std::thread::scope(|s| {
+            s.spawn(|| {
+                for x in 0..QUEUED_TILES as u32 {
+                    handoff.hand(&writer, tile(x), append).unwrap();
+                }
+            });
+        });
         assert!(
             busy.is_empty(),
             "a worker wrote while another held the writer"
@@ -144,21 +142,21 @@ mod tests {
     /// writes them all in order.
     #[test]
     fn past_the_queue_a_worker_waits_for_the_writer() {
-        let handoff = Arc::new(Handoff::default());
-        let writer = Arc::new(Mutex::new(Vec::new()));
+        let handoff = Handoff::default();
+        let writer = Mutex::new(Vec::new());
         let busy = writer.lock().unwrap();
-        let (h, w) = (handoff.clone(), writer.clone());
         let (done, finished) = mpsc::channel();
-        let worker = std::thread::spawn(move || {
-            for x in 0..=QUEUED_TILES as u32 {
-                h.hand(&w, tile(x), append).unwrap();
-            }
-            done.send(()).unwrap();
+        std::thread::scope(|s| {
+            s.spawn(|| {
+                for x in 0..=QUEUED_TILES as u32 {
+                    handoff.hand(&writer, tile(x), append).unwrap();
+                }
+                done.send(()).unwrap();
+            });
+            // The worker cannot finish while the writer is held.
+            assert!(finished.recv_timeout(Duration::from_millis(200)).is_err());
+            drop(busy);
         });
-        // The worker cannot finish while the writer is held.
-        assert!(finished.recv_timeout(Duration::from_millis(200)).is_err());
-        drop(busy);
-        worker.join().unwrap();
         assert_eq!(*writer.lock().unwrap(), [0, 1, 2, 3, 4]);
     }
 
