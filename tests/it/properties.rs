@@ -312,6 +312,15 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                     let alone = active >> k & 1 == 1 && r.world.occluded(ray, 1e-9, reach[k]);
                     assert_eq!(blocked >> k & 1 == 1, alone, "seed {seed} lane {k}");
                 }
+                // And as secondary rays of some pixels: the lanes asked find what they
+                // find alone, the others nothing.
+                let found = r.world.closest8(&packet, active, 1e-9, f64::INFINITY, true);
+                for (k, ray) in packet.iter().enumerate() {
+                    let alone = (active >> k & 1 == 1)
+                        .then(|| r.world.closest(ray, 1e-9, f64::INFINITY))
+                        .flatten();
+                    assert_eq!(found[k], alone, "seed {seed} lane {k}");
+                }
             }
         }
     }
