@@ -263,8 +263,9 @@ impl World {
     /// the one it finds alone, bit for bit. Rays whose numbers the packet's
     /// single-precision test does not take are traced one at a time.
     ///
-    /// Only the rays of `active` (a bit a lane) are traced; the others find `None`, but
-    /// must still be rays the packet's test takes (a copy of an active one will do).
+    /// Only the rays of `active` (a bit a lane) are traced; the others find `None`. They
+    /// still go into the packet's box test, so a copy of an active ray serves best
+    /// there: a ray that test does not take sends the whole packet one ray at a time.
     /// `bounded` false says the caller knows that no ray of the packet meets
     /// [`World::bounds`]: only the unbounded objects are tested.
     pub fn closest8(
