@@ -202,6 +202,7 @@ mod tests {
 
     #[test]
     fn hit_data_of_the_smallest_pixels_stays_within_its_estimate() {
+        crate::measure::alone_or_return!(hit_data_of_the_smallest_pixels_stays_within_its_estimate);
         let n = 200_000;
         let pixels = vec![r#"{"hit":false}"#; n].join(",");
         let doc = format!("[{pixels}]");
@@ -243,6 +244,7 @@ mod tests {
 
     #[test]
     fn a_png_is_priced_from_its_header_above_its_decoding() {
+        crate::measure::alone_or_return!(a_png_is_priced_from_its_header_above_its_decoding);
         let file = rgba16(640, 480);
         assert_eq!(png_size(&file), Ok((640, 480)));
         let estimate = submission(&file, Some(Family::Image(RasterFormat::Png)), (1, 1)).unwrap();

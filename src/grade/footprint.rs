@@ -97,12 +97,14 @@ mod tests {
 
     #[test]
     fn grading_an_image_stays_within_its_estimate() {
+        crate::measure::alone_or_return!(grading_an_image_stays_within_its_estimate);
         check(true, true);
         check(true, false);
     }
 
     #[test]
     fn grading_hit_data_stays_within_its_estimate() {
+        crate::measure::alone_or_return!(grading_hit_data_stays_within_its_estimate);
         check(false, false);
     }
 }

@@ -356,16 +356,21 @@ mod tests {
 
     #[test]
     fn a_document_with_many_invalid_objects_is_priced_above_its_tree() {
+        crate::measure::alone_or_return!(
+            a_document_with_many_invalid_objects_is_priced_above_its_tree
+        );
         check(&spheres(20_000, false), false);
     }
 
     #[test]
     fn a_valid_document_of_many_objects_is_priced_above_its_peak() {
+        crate::measure::alone_or_return!(a_valid_document_of_many_objects_is_priced_above_its_peak);
         check(&spheres(20_000, true), true);
     }
 
     #[test]
     fn a_large_mesh_is_priced_above_its_peak() {
+        crate::measure::alone_or_return!(a_large_mesh_is_priced_above_its_peak);
         check(&mesh(40_000, true), true);
         // A problem sends it through the JSON tree.
         check(&mesh(40_000, false), false);
