@@ -657,22 +657,21 @@ impl Shader<'_> {
     ) -> [DVec3; 8] {
         for sent in next.iter().flatten() {
             let first = sent.lanes.trailing_zeros() as usize;
-            let hits = if sent.lanes == 1 << first {
-                // One ray: its own traversal, as `trace_as` gives it.
-                let mut hits = [None; 8];
-                hits[first] =
-                    self.world
-                        .closest(&sent.rays[first], SECONDARY_LAMBDA_MIN, f64::INFINITY);
-                hits
-            } else {
-                (self.world).closest8(
-                    &sent.rays,
-                    sent.lanes,
-                    SECONDARY_LAMBDA_MIN,
-                    f64::INFINITY,
-                    true,
-                )
-            };
+            if sent.lanes == 1 << first {
+                // One ray: traced alone.
+                let ray = &sent.rays[first];
+                let colour =
+                    self.trace_as::<(), Lecture>(ray, 1, SECONDARY_LAMBDA_MIN, rays, &mut ());
+                c[first] += sent.weight[first] * colour;
+                continue;
+            }
+            let hits = (self.world).closest8(
+                &sent.rays,
+                sent.lanes,
+                SECONDARY_LAMBDA_MIN,
+                f64::INFINITY,
+                true,
+            );
             for k in lanes_of(sent.lanes) {
                 let colour = self.shade_as::<(), Lecture>(&sent.rays[k], 1, hits[k], rays, &mut ());
                 c[k] += sent.weight[k] * colour;
