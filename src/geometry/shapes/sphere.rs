@@ -53,7 +53,27 @@ pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> 
     let a = ray.dir.dot(ray.dir);
     let b = 2.0 * ray.origin.dot(ray.dir);
     let c = ray.origin.dot(ray.origin) - 1.0;
+    if !probe.active() && t_min >= 0.0 && leaves_from_outside(b, c) {
+        return None;
+    }
     first_root(a, b, c, t_min, t_max, probe)
+}
+
+/// Whether a ray starting outside the sphere (`c > 0`) and moving away from its centre
+/// (`b > 0`) has both of the lecture's roots at `λ ≤ 0`, as computed, so that no
+/// `t_min ≥ 0` admits either: its square root and divisions are skipped. Every shadow
+/// and mirror ray leaving a sphere's surface meets this case in its own sphere.
+///
+/// Exact, not approximate: with `a > 0` and `c > 0`, `4ac ≥ 0`, so the rounded
+/// discriminant is at most `fl(b²)` and its rounded square root at most
+/// `fl(√fl(b²)) = b` (square roots are correctly rounded, hence monotone, and give
+/// back `|b|` from `fl(b²)` wherever `b²` is a normal number: hence `b > 10⁻¹⁵⁰`).
+/// So `−b + √disc ≤ 0`, and both roots are `≤ 0`; a zero discriminant's root `−b/2a`
+/// is negative. Where `b²` overflows, the roots are `±∞` or NaN, which no interval
+/// admits either.
+#[inline(always)]
+fn leaves_from_outside(b: f64, c: f64) -> bool {
+    c > 0.0 && b > 1e-150
 }
 
 #[inline(always)]
@@ -106,5 +126,64 @@ mod tests {
         assert_eq!(intersect(&behind, 1e-9, f64::INFINITY, &mut ()), None);
         let miss = Ray::new(DVec3::new(0.0, 1.5, -3.0), DVec3::Z);
         assert_eq!(intersect(&miss, 1e-9, f64::INFINITY, &mut ()), None);
+    }
+
+    use proptest::prelude::*;
+
+    /// What the lecture's formula gives, every root computed.
+    fn full(ray: &Ray, t_min: f64, t_max: f64) -> Option<f64> {
+        let a = ray.dir.dot(ray.dir);
+        let b = 2.0 * ray.origin.dot(ray.dir);
+        let c = ray.origin.dot(ray.origin) - 1.0;
+        first_root(a, b, c, t_min, t_max, &mut ())
+    }
+
+    fn vector() -> impl Strategy<Value = DVec3> {
+        prop::array::uniform3(-1.0f64..1.0).prop_map(DVec3::from_array)
+    }
+
+    proptest! {
+        /// Rays leaving the surface (shadow and mirror rays, started a hair off it, or on
+        /// it), rays from anywhere, and rays of extreme scale: the skipped roots are
+        /// never a hit, and every answer is the full formula's, bit for bit.
+        #[test]
+        fn a_ray_leaving_from_outside_is_told_without_its_roots(
+            u in vector(),
+            d in vector(),
+            off in prop_oneof![Just(0.0), Just(1e-9), Just(-1e-9), -1e-6f64..1e-6],
+            anywhere in prop::array::uniform3(-3.0f64..3.0),
+            scale in prop_oneof![Just(1.0), Just(1e-160), Just(1e-75), Just(1e150), Just(1e200)],
+            t_min in prop_oneof![Just(1e-9), Just(0.0), Just(-1.0), 0.0f64..2.0],
+            t_max in prop_oneof![Just(f64::INFINITY), 0.0f64..8.0],
+        ) {
+            let Some(n) = u.try_normalize() else { return Ok(()) };
+            let rays = [
+                Ray::new(n * (1.0 + off), d),
+                Ray::new(n * (1.0 + off), n + d * 0.5),
+                Ray::new(DVec3::from_array(anywhere), d),
+                Ray::new(DVec3::from_array(anywhere), d * scale),
+                Ray::new(n * (1.0 + off), d * scale),
+            ];
+            for r in rays {
+                let (got, want) = (intersect(&r, t_min, t_max, &mut ()), full(&r, t_min, t_max));
+                prop_assert_eq!(got.map(f64::to_bits), want.map(f64::to_bits), "{:?}", r);
+            }
+        }
+    }
+
+    /// The rays the shortcut is for take it: a shadow ray leaving a lit point, started
+    /// off the surface as the shader starts it.
+    #[test]
+    fn a_shadow_ray_leaving_its_sphere_skips_the_roots() {
+        let n = DVec3::new(0.3, 0.8, -0.2).normalize();
+        let r = Ray::new(n * (1.0 + 1e-9), DVec3::new(5.0, 9.0, 1.0));
+        let b = 2.0 * r.origin.dot(r.dir);
+        let c = r.origin.dot(r.origin) - 1.0;
+        assert!(leaves_from_outside(b, c));
+        assert_eq!(intersect(&r, 1e-9, 1.0, &mut ()), None);
+        // Toward the inside (a specular term's shadow ray can point there), it is hit.
+        let inward = Ray::new(r.origin, -n);
+        assert!(!leaves_from_outside(2.0 * r.origin.dot(inward.dir), c));
+        assert!(intersect(&inward, 1e-9, 10.0, &mut ()).is_some());
     }
 }
