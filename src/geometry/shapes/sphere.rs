@@ -50,13 +50,20 @@ impl CanonicalShape for Sphere {
 /// `a = d·d`, `b = 2 p₀·d`, `c = p₀·p₀ − 1`.
 #[inline]
 pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> Option<f64> {
-    let a = ray.dir.dot(ray.dir);
-    let b = 2.0 * ray.origin.dot(ray.dir);
-    let c = ray.origin.dot(ray.origin) - 1.0;
+    let (a, b, c) = coefficients(ray);
     if !probe.active() && t_min >= 0.0 && leaves_from_outside(b, c) {
         return None;
     }
     first_root(a, b, c, t_min, t_max, probe)
+}
+
+/// The quadratic's `a = d·d`, `b = 2 p₀·d`, `c = p₀·p₀ − 1` for `ray`.
+#[inline(always)]
+fn coefficients(ray: &Ray) -> (f64, f64, f64) {
+    let a = ray.dir.dot(ray.dir);
+    let b = 2.0 * ray.origin.dot(ray.dir);
+    let c = ray.origin.dot(ray.origin) - 1.0;
+    (a, b, c)
 }
 
 /// Whether a ray starting outside the sphere (`c > 0`) and moving away from its centre
@@ -132,9 +139,7 @@ mod tests {
 
     /// What the lecture's formula gives, every root computed.
     fn full(ray: &Ray, t_min: f64, t_max: f64) -> Option<f64> {
-        let a = ray.dir.dot(ray.dir);
-        let b = 2.0 * ray.origin.dot(ray.dir);
-        let c = ray.origin.dot(ray.origin) - 1.0;
+        let (a, b, c) = coefficients(ray);
         first_root(a, b, c, t_min, t_max, &mut ())
     }
 
@@ -177,13 +182,13 @@ mod tests {
     fn a_shadow_ray_leaving_its_sphere_skips_the_roots() {
         let n = DVec3::new(0.3, 0.8, -0.2).normalize();
         let r = Ray::new(n * (1.0 + 1e-9), DVec3::new(5.0, 9.0, 1.0));
-        let b = 2.0 * r.origin.dot(r.dir);
-        let c = r.origin.dot(r.origin) - 1.0;
+        let (_, b, c) = coefficients(&r);
         assert!(leaves_from_outside(b, c));
         assert_eq!(intersect(&r, 1e-9, 1.0, &mut ()), None);
         // Toward the inside (a specular term's shadow ray can point there), it is hit.
         let inward = Ray::new(r.origin, -n);
-        assert!(!leaves_from_outside(2.0 * r.origin.dot(inward.dir), c));
+        let (_, b, c) = coefficients(&inward);
+        assert!(!leaves_from_outside(b, c));
         assert!(intersect(&inward, 1e-9, 10.0, &mut ()).is_some());
     }
 }
