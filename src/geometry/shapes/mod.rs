@@ -382,6 +382,44 @@ impl std::fmt::Display for ShapeName {
     }
 }
 
+/// Whether the roots of `a λ² + b λ + c = 0` that [`solve_quadratic`] would give,
+/// for `a ≥ 0`, are all at `λ ≤ 0`, as computed, because `c > 0` and `b > 0`: then no
+/// `t_min ≥ 0` admits either, and the square root and divisions can be skipped. For
+/// the sphere and the cylinder's side, `c > 0` is a ray starting outside the surface
+/// and `b > 0` one moving away from its centre or axis, which every shadow and mirror
+/// ray leaving that surface is, in its own object. (The cone's `a` may be negative,
+/// and its `c > 0` is not outside, so it does not qualify.)
+///
+/// Exact, not approximate: with `a ≥ 0` and `c > 0`, `4ac ≥ 0`, so the rounded
+/// discriminant is at most `fl(b²)` and its rounded square root at most
+/// `fl(√fl(b²)) = b` (square roots are correctly rounded, hence monotone, and give
+/// back `|b|` from `fl(b²)` wherever `b²` is a normal number: hence `b > 10⁻¹⁵⁰`).
+/// So `−b + √disc ≤ 0`, and both roots are `≤ 0`; a zero discriminant's root `−b/2a`
+/// is negative, and `a = 0` gives no roots at all. Where `b²` or `4ac` overflows, the
+/// roots are `+∞`, `−∞` or NaN, or there are none, and no interval admits any of them.
+#[inline(always)]
+pub(crate) fn leaves_from_outside(b: f64, c: f64) -> bool {
+    c > 0.0 && b > 1e-150
+}
+
+/// [`solve_quadratic`]'s roots where some may lie beyond `t_min`; none where
+/// [`leaves_from_outside`] shows them all at `λ ≤ 0` and `t_min ≥ 0` refuses them.
+/// A probe recording the roots (a pixel's explanation) always gets the whole test.
+#[inline(always)]
+pub(crate) fn roots_ahead<P: super::hit::Probe>(
+    surface: &'static str,
+    a: f64,
+    b: f64,
+    c: f64,
+    t_min: f64,
+    probe: &mut P,
+) -> [Option<f64>; 2] {
+    if !probe.active() && t_min >= 0.0 && leaves_from_outside(b, c) {
+        return [None, None];
+    }
+    solve_quadratic(surface, a, b, c, probe)
+}
+
 /// Solves `a λ² + b λ + c = 0` the way the lecture does, reporting to `probe`, and
 /// returns the real roots in increasing order (`a > 0` assumed by callers that need order).
 #[inline(always)]
@@ -419,6 +457,92 @@ pub(crate) fn solve_quadratic<P: super::hit::Probe>(
 mod tests {
     use super::*;
     use crate::geometry::hit::{FaceTest, Probe};
+    use proptest::prelude::*;
+
+    /// A probe that asks for every value, so that the tests it watches take no
+    /// shortcut: with it, a shape's test is the lecture's whole formula.
+    pub(super) struct Watching;
+
+    impl Probe for Watching {
+        fn active(&self) -> bool {
+            true
+        }
+    }
+
+    /// A coefficient of any sign and scale, zeros and the extremes included (most of
+    /// them of the size rays of a scene give).
+    fn coefficient() -> impl Strategy<Value = f64> {
+        let extreme = prop_oneof![
+            Just(1e-320),
+            Just(1e-160),
+            Just(1e-150),
+            Just(1e150),
+            Just(1e160),
+            Just(1e300)
+        ];
+        prop_oneof![
+            1 => Just(0.0),
+            1 => Just(f64::MIN_POSITIVE),
+            6 => -4.0f64..4.0,
+            2 => (-4.0f64..4.0, extreme).prop_map(|(x, s)| x * s),
+        ]
+    }
+
+    proptest! {
+        /// `roots_ahead` drops only roots that an interval `(t_min, t_max)` with
+        /// `t_min ≥ 0` refuses: the roots in `(t_min, ∞)` are `solve_quadratic`'s, bit
+        /// for bit, for every `a ≥ 0`, `b` and `c`. (Where `b²` overflows, a root may be
+        /// `+∞`, which no `t < t_max` admits.) Each is also taken as a ray's would be
+        /// with its direction scaled by `s` (`a s²`, `b s`, `c`), where `b²` and `4ac`
+        /// may fall below the normal numbers together.
+        #[test]
+        fn roots_ahead_drops_only_roots_behind(
+            a in coefficient().prop_map(f64::abs),
+            b in coefficient(),
+            c in coefficient(),
+            s in prop_oneof![Just(1e-160), Just(1e-158), Just(1e-80), Just(1e150)],
+            t_min in prop_oneof![Just(0.0), Just(1e-9), 0.0f64..2.0],
+        ) {
+            let beyond = |roots: [Option<f64>; 2]| {
+                roots.map(|r| r.filter(|&t| t > t_min && t < f64::INFINITY).map(f64::to_bits))
+            };
+            for (a, b, c) in [(a, b, c), (a * s * s, b * s, c)] {
+                prop_assert_eq!(
+                    beyond(roots_ahead("q", a, b, c, t_min, &mut ())),
+                    beyond(solve_quadratic("q", a, b, c, &mut ())),
+                    "a = {:e}, b = {:e}, c = {:e}", a, b, c
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn roots_ahead_skips_only_rays_leaving_from_outside() {
+        // Outside and moving away: both roots negative, none computed.
+        assert_eq!(
+            solve_quadratic("q", 1.0, 3.0, 2.0, &mut ()),
+            [Some(-2.0), Some(-1.0)]
+        );
+        assert_eq!(roots_ahead("q", 1.0, 3.0, 2.0, 0.0, &mut ()), [None, None]);
+        // Outside and moving closer, or inside: the roots as solved.
+        assert_eq!(
+            roots_ahead("q", 1.0, -3.0, 2.0, 0.0, &mut ()),
+            [Some(1.0), Some(2.0)]
+        );
+        assert_eq!(
+            roots_ahead("q", 1.0, 3.0, -4.0, 0.0, &mut ()),
+            [Some(-4.0), Some(1.0)]
+        );
+        // A negative `t_min` would admit the roots behind, and a probe asks for them.
+        assert_eq!(
+            roots_ahead("q", 1.0, 3.0, 2.0, -1.5, &mut ()),
+            [Some(-2.0), Some(-1.0)]
+        );
+        assert_eq!(
+            roots_ahead("q", 1.0, 3.0, 2.0, 0.0, &mut Watching),
+            [Some(-2.0), Some(-1.0)]
+        );
+    }
 
     fn every_shape() -> Vec<Shape> {
         ShapeName::ALL

@@ -2,7 +2,7 @@
 
 use glam::DVec3;
 
-use super::{CanonicalShape, solve_quadratic};
+use super::{CanonicalShape, roots_ahead};
 use crate::geometry::{bounds::Aabb, hit::Probe, ray::Ray, transform::Transform};
 
 /// The unit sphere as a [`CanonicalShape`]: one part, closed.
@@ -51,10 +51,10 @@ impl CanonicalShape for Sphere {
 #[inline]
 pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> Option<f64> {
     let (a, b, c) = coefficients(ray);
-    if !probe.active() && t_min >= 0.0 && leaves_from_outside(b, c) {
-        return None;
-    }
-    first_root(a, b, c, t_min, t_max, probe)
+    roots_ahead(Sphere::NAME, a, b, c, t_min, probe)
+        .into_iter()
+        .flatten()
+        .find(|&t| t > t_min && t < t_max)
 }
 
 /// The quadratic's `a = d·d`, `b = 2 p₀·d`, `c = p₀·p₀ − 1` for `ray`.
@@ -64,38 +64,6 @@ fn coefficients(ray: &Ray) -> (f64, f64, f64) {
     let b = 2.0 * ray.origin.dot(ray.dir);
     let c = ray.origin.dot(ray.origin) - 1.0;
     (a, b, c)
-}
-
-/// Whether a ray starting outside the sphere (`c > 0`) and moving away from its centre
-/// (`b > 0`) has both of the lecture's roots at `λ ≤ 0`, as computed, so that no
-/// `t_min ≥ 0` admits either: its square root and divisions are skipped. Every shadow
-/// and mirror ray leaving a sphere's surface meets this case in its own sphere.
-///
-/// Exact, not approximate: with `a > 0` and `c > 0`, `4ac ≥ 0`, so the rounded
-/// discriminant is at most `fl(b²)` and its rounded square root at most
-/// `fl(√fl(b²)) = b` (square roots are correctly rounded, hence monotone, and give
-/// back `|b|` from `fl(b²)` wherever `b²` is a normal number: hence `b > 10⁻¹⁵⁰`).
-/// So `−b + √disc ≤ 0`, and both roots are `≤ 0`; a zero discriminant's root `−b/2a`
-/// is negative. Where `b²` overflows, the roots are `±∞` or NaN, which no interval
-/// admits either.
-#[inline(always)]
-fn leaves_from_outside(b: f64, c: f64) -> bool {
-    c > 0.0 && b > 1e-150
-}
-
-#[inline(always)]
-fn first_root<P: Probe>(
-    a: f64,
-    b: f64,
-    c: f64,
-    t_min: f64,
-    t_max: f64,
-    probe: &mut P,
-) -> Option<f64> {
-    solve_quadratic("sphere", a, b, c, probe)
-        .into_iter()
-        .flatten()
-        .find(|&t| t > t_min && t < t_max)
 }
 
 /// The outward normal at an object-space point: the point itself.
@@ -135,12 +103,12 @@ mod tests {
         assert_eq!(intersect(&miss, 1e-9, f64::INFINITY, &mut ()), None);
     }
 
+    use crate::geometry::shapes::{leaves_from_outside, tests::Watching};
     use proptest::prelude::*;
 
     /// What the lecture's formula gives, every root computed.
     fn full(ray: &Ray, t_min: f64, t_max: f64) -> Option<f64> {
-        let (a, b, c) = coefficients(ray);
-        first_root(a, b, c, t_min, t_max, &mut ())
+        intersect(ray, t_min, t_max, &mut Watching)
     }
 
     fn vector() -> impl Strategy<Value = DVec3> {
