@@ -387,8 +387,9 @@ impl std::fmt::Display for ShapeName {
 /// `t_min ≥ 0` admits either, and the square root and divisions can be skipped. For
 /// the sphere and the cylinder's side, `c > 0` is a ray starting outside the surface
 /// and `b > 0` one moving away from its centre or axis, which every shadow and mirror
-/// ray leaving that surface is, in its own object. (The cone's `a` may be negative,
-/// and its `c > 0` is not outside, so it does not qualify.)
+/// ray leaving that surface is, in its own object. (The cone's side qualifies only
+/// where its `a > 0`, for rays flatter than its generator lines; shadow rays toward
+/// lights overhead are mostly steeper, and it was left out: README, "Speed".)
 ///
 /// Exact, not approximate: with `a ≥ 0` and `c > 0`, `4ac ≥ 0`, so the rounded
 /// discriminant is at most `fl(b²)` and its rounded square root at most
