@@ -110,7 +110,8 @@ mod tests {
         assert_eq!(normal(DVec3::new(1.0, 0.0, 0.0), 0), DVec3::X);
     }
 
-    use crate::geometry::shapes::{leaves_from_outside, tests::Watching};
+    use crate::geometry::shapes::leaves_from_outside;
+    use crate::geometry::shapes::tests::{Watching, any_t_max, any_t_min, off_surface, ray_scale};
     use proptest::prelude::*;
 
     proptest! {
@@ -122,11 +123,11 @@ mod tests {
             angle in 0.0f64..std::f64::consts::TAU,
             y in -1.2f64..1.2,
             d in prop::array::uniform3(-1.0f64..1.0).prop_map(DVec3::from_array),
-            off in prop_oneof![Just(0.0), Just(1e-9), Just(-1e-9), -1e-6f64..1e-6],
+            off in off_surface(),
             anywhere in prop::array::uniform3(-3.0f64..3.0).prop_map(DVec3::from_array),
-            scale in prop_oneof![Just(1.0), Just(1e-160), Just(1e-75), Just(1e150), Just(1e200)],
-            t_min in prop_oneof![Just(1e-9), Just(0.0), Just(-1.0), 0.0f64..2.0],
-            t_max in prop_oneof![Just(f64::INFINITY), 0.0f64..8.0],
+            scale in ray_scale(),
+            t_min in any_t_min(),
+            t_max in any_t_max(),
         ) {
             let n = DVec3::new(angle.cos(), 0.0, angle.sin());
             let on = n * (1.0 + off) + DVec3::Y * y;

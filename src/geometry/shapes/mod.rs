@@ -399,7 +399,7 @@ impl std::fmt::Display for ShapeName {
 /// is negative, and `a = 0` gives no roots at all. Where `b²` or `4ac` overflows, the
 /// roots are `+∞`, `−∞` or NaN, or there are none, and no interval admits any of them.
 #[inline(always)]
-pub(crate) fn leaves_from_outside(b: f64, c: f64) -> bool {
+fn leaves_from_outside(b: f64, c: f64) -> bool {
     c > 0.0 && b > 1e-150
 }
 
@@ -407,7 +407,7 @@ pub(crate) fn leaves_from_outside(b: f64, c: f64) -> bool {
 /// [`leaves_from_outside`] shows them all at `λ ≤ 0` and `t_min ≥ 0` refuses them.
 /// A probe recording the roots (a pixel's explanation) always gets the whole test.
 #[inline(always)]
-pub(crate) fn roots_ahead<P: super::hit::Probe>(
+fn roots_ahead<P: super::hit::Probe>(
     surface: &'static str,
     a: f64,
     b: f64,
@@ -468,6 +468,34 @@ mod tests {
         fn active(&self) -> bool {
             true
         }
+    }
+
+    /// How far off a surface the property tests' rays start, as a fraction of its
+    /// size: on it, a hair outside or inside, or a little either way.
+    pub(super) fn off_surface() -> impl Strategy<Value = f64> {
+        prop_oneof![Just(0.0), Just(1e-9), Just(-1e-9), -1e-6f64..1e-6]
+    }
+
+    /// A scale for a ray's direction: none, or one that takes its coefficients below
+    /// the normal numbers or near overflow.
+    pub(super) fn ray_scale() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            Just(1.0),
+            Just(1e-160),
+            Just(1e-75),
+            Just(1e150),
+            Just(1e200)
+        ]
+    }
+
+    /// A `t_min`: the shader's, zero, negative (which the shortcut must not take) or any.
+    pub(super) fn any_t_min() -> impl Strategy<Value = f64> {
+        prop_oneof![Just(1e-9), Just(0.0), Just(-1.0), 0.0f64..2.0]
+    }
+
+    /// A `t_max`: unbounded, or a segment's end.
+    pub(super) fn any_t_max() -> impl Strategy<Value = f64> {
+        prop_oneof![Just(f64::INFINITY), 0.0f64..8.0]
     }
 
     /// A coefficient of any sign and scale, zeros and the extremes included (most of

@@ -103,7 +103,8 @@ mod tests {
         assert_eq!(intersect(&miss, 1e-9, f64::INFINITY, &mut ()), None);
     }
 
-    use crate::geometry::shapes::{leaves_from_outside, tests::Watching};
+    use crate::geometry::shapes::leaves_from_outside;
+    use crate::geometry::shapes::tests::{Watching, any_t_max, any_t_min, off_surface, ray_scale};
     use proptest::prelude::*;
 
     /// What the lecture's formula gives, every root computed.
@@ -123,11 +124,11 @@ mod tests {
         fn a_ray_leaving_from_outside_is_told_without_its_roots(
             u in vector(),
             d in vector(),
-            off in prop_oneof![Just(0.0), Just(1e-9), Just(-1e-9), -1e-6f64..1e-6],
+            off in off_surface(),
             anywhere in prop::array::uniform3(-3.0f64..3.0),
-            scale in prop_oneof![Just(1.0), Just(1e-160), Just(1e-75), Just(1e150), Just(1e200)],
-            t_min in prop_oneof![Just(1e-9), Just(0.0), Just(-1.0), 0.0f64..2.0],
-            t_max in prop_oneof![Just(f64::INFINITY), 0.0f64..8.0],
+            scale in ray_scale(),
+            t_min in any_t_min(),
+            t_max in any_t_max(),
         ) {
             let Some(n) = u.try_normalize() else { return Ok(()) };
             let rays = [
