@@ -865,7 +865,13 @@ struct Split {
 impl Split {
     /// The groups `n` primitives take.
     fn groups(&self, n: usize) -> f64 {
-        n.div_ceil(self.lanes.max(1)) as f64
+        // The world's tree counts primitives one by one: no integer division (the SAH
+        // asks this twice for every split it weighs).
+        if self.lanes <= 1 {
+            n as f64
+        } else {
+            n.div_ceil(self.lanes) as f64
+        }
     }
 }
 
@@ -982,28 +988,36 @@ impl Builder {
             counts[b] += 1;
             bins[b] = bins[b].with(p);
         }
+        // The sweeps visit only the bins that hold primitives: a union with an empty bin
+        // changes nothing, and a split between two filled bins is the same split
+        // wherever between them it falls (the first such bin boundary is the one taken,
+        // as a sweep over all of them takes it). Most nodes are small, with a few of the
+        // twelve bins filled, and sweeping the empty ones was most of their cost.
+        let filled: ArrayVec<usize, SAH_BINS> = (0..SAH_BINS).filter(|&i| counts[i] > 0).collect();
+        // The union of `filled[j..]`, at `j`.
         let mut right_area = [0.0; SAH_BINS];
-        let (mut acc, mut acc_n) = (Aabb::EMPTY, 0);
         let mut right_n = [0usize; SAH_BINS];
-        for i in (1..SAH_BINS).rev() {
-            acc = acc.union(&bins[i].bounds);
-            acc_n += counts[i];
-            right_area[i] = acc.half_area();
-            right_n[i] = acc_n;
+        let (mut acc, mut acc_n) = (Aabb::EMPTY, 0);
+        for j in (1..filled.len()).rev() {
+            acc = acc.union(&bins[filled[j]].bounds);
+            acc_n += counts[filled[j]];
+            right_area[j] = acc.half_area();
+            right_n[j] = acc_n;
         }
-        let (mut best_cost, mut best_bin) = (f64::INFINITY, 0);
+        // `best`: how many filled bins lie below the cheapest split, and the first bin
+        // above it.
+        let (mut best_cost, mut best, mut best_bin) = (f64::INFINITY, 0, 0);
         let (mut left, mut left_n) = (Aabb::EMPTY, 0);
-        for i in 1..SAH_BINS {
-            left = left.union(&bins[i - 1].bounds);
-            left_n += counts[i - 1];
-            if left_n == 0 || right_n[i] == 0 {
-                continue;
-            }
+        for j in 1..filled.len() {
+            let below = filled[j - 1];
+            left = left.union(&bins[below].bounds);
+            left_n += counts[below];
             let cost = left.half_area() * self.split.groups(left_n)
-                + right_area[i] * self.split.groups(right_n[i]);
+                + right_area[j] * self.split.groups(right_n[j]);
             if cost < best_cost {
                 best_cost = cost;
-                best_bin = i;
+                best = j;
+                best_bin = below + 1;
             }
         }
         // In tests of a node's boxes, for a ray entering this node: a leaf tests all n;
@@ -1026,8 +1040,8 @@ impl Builder {
         }
         // Each side's unions are those of its bins: min and max are exact, so they are
         // the unions over its primitives, whatever the order.
-        let union = |bins: &[Side]| bins.iter().fold(Side::EMPTY, |s, b| s.join(b));
-        let (below, above) = bins.split_at(best_bin);
+        let union = |f: &[usize]| f.iter().fold(Side::EMPTY, |s, &b| s.join(&bins[b]));
+        let (below, above) = filled.split_at(best);
         Some((mid, Some([union(below), union(above)])))
     }
 }
@@ -1434,6 +1448,60 @@ mod tests {
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(256))]
+
+        /// A split the SAH chooses is the first of the cheapest bin boundaries, each
+        /// weighed from its two sides' primitives themselves (grid boxes, so that
+        /// boundaries often cost the same), and its sides' unions are theirs.
+        #[test]
+        fn the_sah_takes_the_first_cheapest_bin_boundary(
+            boxes in prop::collection::vec(grid_box(), 2..40),
+            test_cost in prop_oneof![Just(0.5), Just(1.0), Just(4.0)],
+            lanes in prop_oneof![Just(1usize), Just(4)],
+        ) {
+            let mut prims: Vec<BuildPrim> = boxes
+                .iter()
+                .enumerate()
+                .map(|(i, &bounds)| BuildPrim {
+                    bounds,
+                    centroid: bounds.centroid(),
+                    index: i as u32,
+                    bin: 0,
+                })
+                .collect();
+            let side = Side::of(&prims);
+            let builder = Builder {
+                split: Split { test_cost, lanes, parallel_from: usize::MAX },
+                ..Builder::default()
+            };
+            let Some((mid, Some([below, above]))) = builder.choose_split(&mut prims, &side, 0)
+            else {
+                return Ok(());
+            };
+            let groups = |n: usize| n.div_ceil(lanes) as f64;
+            let mut cheapest = None;
+            for boundary in 1..SAH_BINS as u32 {
+                let (l, r): (Vec<&BuildPrim>, Vec<&BuildPrim>) =
+                    prims.iter().partition(|p| p.bin < boundary);
+                if l.is_empty() || r.is_empty() {
+                    continue;
+                }
+                let area = |s: &[&BuildPrim]| {
+                    s.iter().fold(Aabb::EMPTY, |b, p| b.union(&p.bounds)).half_area()
+                };
+                let cost = area(&l) * groups(l.len()) + area(&r) * groups(r.len());
+                if cheapest.is_none_or(|(c, _)| cost < c) {
+                    cheapest = Some((cost, boundary));
+                }
+            }
+            let (_, boundary) = cheapest.expect("a split has two filled sides");
+            prop_assert!(prims[..mid].iter().all(|p| p.bin < boundary));
+            prop_assert!(prims[mid..].iter().all(|p| p.bin >= boundary));
+            for (half, got) in [(&prims[..mid], below), (&prims[mid..], above)] {
+                let want = Side::of(half);
+                prop_assert_eq!(got.bounds, want.bounds);
+                prop_assert_eq!(got.centroids, want.centroids);
+            }
+        }
 
         #[test]
         fn tree_finds_what_every_box_finds(
