@@ -37,8 +37,13 @@ const MAX_PROBLEMS: usize = 100;
 pub fn parse(bytes: &[u8], limits: &Limits) -> Result<Scene, SceneError> {
     // Fast path: a well-formed document deserialises straight into its types, without
     // building a JSON tree first (several times faster on large scenes). Any error sends
-    // it through the slow path, which reads part by part to report every problem.
-    if let Ok(doc) = serde_json::from_slice::<SceneDoc>(bytes) {
+    // it through the slow path, which reads part by part to report every problem. The
+    // bytes are checked to be UTF-8 once, as a whole: read from bytes, serde_json
+    // checks each string on its own, which cost a tenth of reading `spheres-100k`.
+    let fast = std::str::from_utf8(bytes)
+        .ok()
+        .and_then(|text| serde_json::from_str::<SceneDoc>(text).ok());
+    if let Some(doc) = fast {
         let mut p = Problems::default();
         return match check(doc, &Failed::default(), limits, &mut p) {
             Some(s) if p.list.is_empty() => Ok(s),
@@ -390,6 +395,30 @@ mod tests {
                 ..
             })
         ));
+    }
+
+    #[test]
+    fn text_is_read_as_utf_8_and_other_bytes_are_a_syntax_error_where_they_stand() {
+        let doc = |name: &[u8]| {
+            [
+                br#"{"version": 1, "image": {"width": 1, "height": 1}, "objects": [{"name": ""#
+                    .as_slice(),
+                name,
+                br#"", "shape": "sphere"}]}"#,
+            ]
+            .concat()
+        };
+        let scene = parse(&doc("sphère ☀".as_bytes()), &Limits::default()).expect("a scene");
+        assert_eq!(scene.objects[0].name.as_deref(), Some("sphère ☀"));
+        // Latin-1's è, not UTF-8: the error stands on its byte.
+        assert_eq!(
+            parse(&doc(b"sph\xe8re"), &Limits::default()).err(),
+            Some(SceneError::Syntax {
+                message: "invalid unicode code point".into(),
+                line: 1,
+                column: 77,
+            })
+        );
     }
 
     #[test]
