@@ -227,17 +227,12 @@ impl Bvh {
         let built = if prims.is_empty() {
             Builder::default()
         } else {
-            let side = Side::of(&prims);
-            Builder::subtree(
-                &mut prims,
-                0,
-                Split {
-                    test_cost,
-                    lanes,
-                    parallel_from,
-                },
-                side,
-            )
+            let split = Split {
+                test_cost,
+                lanes,
+                parallel_from,
+            };
+            Builder::tree(&mut prims, split)
         };
         let mut bvh = Bvh {
             nodes: built.nodes,
@@ -875,6 +870,61 @@ impl Split {
     }
 }
 
+/// A subtree as the build leaves it: built on one thread, into vectors of its own, or a
+/// node whose two halves were built in parallel. [`Part::lay_out`] copies each node
+/// once into the tree's one vector; appending each half to its parent as soon as it was
+/// built copied a node once for every parallel level above it, into fresh pages each
+/// time.
+enum Part {
+    Built(Builder),
+    Split(Node, Box<(Part, Part)>),
+}
+
+impl Part {
+    /// The tree over `prims`, its root at `depth` (`side` is [`Side::of`] them), its
+    /// halves built in parallel on the current rayon pool where it has at least
+    /// `split.parallel_from` primitives.
+    fn build(prims: &mut [BuildPrim], depth: usize, split: Split, side: Side) -> Part {
+        let chosen = if prims.len() < split.parallel_from {
+            None
+        } else {
+            Builder::reserved(0, split).choose_split(prims, &side, depth)
+        };
+        let Some((mid, sides)) = chosen else {
+            return Part::Built(Builder::subtree(prims, depth, split, side));
+        };
+        let (left, right) = prims.split_at_mut(mid);
+        let [l, r] = sides.unwrap_or_else(|| [Side::of(left), Side::of(right)]);
+        let halves = rayon::join(
+            || Part::build(left, depth + 1, split, l),
+            || Part::build(right, depth + 1, split, r),
+        );
+        let node = Node {
+            min: side.bounds.min,
+            max: side.bounds.max,
+            offset: 0,
+            count: 0,
+        };
+        Part::Split(node, Box::new(halves))
+    }
+
+    /// Appends the subtree to `whole` in depth-first order, the layout building it in
+    /// place on one thread gives.
+    fn lay_out(self, whole: &mut Builder) {
+        match self {
+            Part::Built(b) => whole.append(b),
+            Part::Split(node, halves) => {
+                let me = whole.nodes.len();
+                whole.nodes.push(node);
+                let (left, right) = *halves;
+                left.lay_out(whole);
+                whole.nodes[me].offset = whole.nodes.len() as u32;
+                right.lay_out(whole);
+            }
+        }
+    }
+}
+
 /// The binary tree being built: nodes in depth-first order (a node, its first subtree,
 /// its second), and the primitive indices in leaf order.
 #[derive(Default)]
@@ -887,16 +937,35 @@ struct Builder {
 impl Builder {
     /// The tree over `prims`, its root at `depth`; `side` is [`Side::of`] them.
     fn subtree(prims: &mut [BuildPrim], depth: usize, split: Split, side: Side) -> Builder {
-        let mut b = Builder {
+        let mut b = Builder::reserved(prims.len(), split);
+        b.build_node(prims, depth, side);
+        b
+    }
+
+    /// The tree over `prims` (at least one), the halves of its subtrees of
+    /// `split.parallel_from` primitives or more built in parallel: the same tree.
+    fn tree(prims: &mut [BuildPrim], split: Split) -> Builder {
+        let side = Side::of(prims);
+        match Part::build(prims, 0, split, side) {
+            Part::Built(whole) => whole,
+            halves => {
+                let mut whole = Builder::reserved(prims.len(), split);
+                halves.lay_out(&mut whole);
+                whole
+            }
+        }
+    }
+
+    /// An empty tree with room for one over `n` primitives.
+    fn reserved(n: usize, split: Split) -> Builder {
+        Builder {
             // A binary tree of n leaves has 2n − 1 nodes, and a leaf holds at least one
             // primitive: reserved once, the vector is never copied to grow (reserved
             // pages that stay unused are never touched).
-            nodes: Vec::with_capacity((2 * prims.len()).saturating_sub(1)),
-            order: Vec::with_capacity(prims.len()),
+            nodes: Vec::with_capacity((2 * n).saturating_sub(1)),
+            order: Vec::with_capacity(n),
             split,
-        };
-        b.build_node(prims, depth, side);
-        b
+        }
     }
 
     /// Appends a subtree built on its own, moving its references to where its nodes
@@ -932,22 +1001,11 @@ impl Builder {
                 self.order.extend(prims.iter().map(|p| p.index));
             }
             Some((mid, sides)) => {
-                let parallel = prims.len() >= self.split.parallel_from;
                 let (left, right) = prims.split_at_mut(mid);
                 let [l, r] = sides.unwrap_or_else(|| [Side::of(left), Side::of(right)]);
-                if parallel {
-                    let (l, r) = rayon::join(
-                        || Builder::subtree(left, depth + 1, self.split, l),
-                        || Builder::subtree(right, depth + 1, self.split, r),
-                    );
-                    self.append(l);
-                    self.nodes[me].offset = self.nodes.len() as u32;
-                    self.append(r);
-                } else {
-                    self.build_node(left, depth + 1, l);
-                    self.nodes[me].offset = self.nodes.len() as u32;
-                    self.build_node(right, depth + 1, r);
-                }
+                self.build_node(left, depth + 1, l);
+                self.nodes[me].offset = self.nodes.len() as u32;
+                self.build_node(right, depth + 1, r);
             }
         }
     }
@@ -1115,11 +1173,7 @@ mod tests {
             lanes: 1,
             parallel_from,
         };
-        let build = |parallel_from| {
-            let mut p = prims();
-            let side = Side::of(&p);
-            Builder::subtree(&mut p, 0, at(parallel_from), side)
-        };
+        let build = |parallel_from| Builder::tree(&mut prims(), at(parallel_from));
         let whole = build(usize::MAX);
         // Each node's box, carried down from its parent's bins, is the union of its
         // primitives' boxes.
