@@ -868,6 +868,99 @@ impl Split {
             n.div_ceil(self.lanes) as f64
         }
     }
+
+    /// Partitions `prims` (of [`Side`] `side`) and returns the split index, with both
+    /// sides where the SAH's bins give them; `None` for a leaf.
+    fn choose_split(
+        &self,
+        prims: &mut [BuildPrim],
+        side: &Side,
+        depth: usize,
+    ) -> Option<(usize, Option<[Side; 2]>)> {
+        let (bounds, cb) = (&side.bounds, &side.centroids);
+        let extent = cb.max - cb.min;
+        let axis = if extent.x >= extent.y && extent.x >= extent.z {
+            0
+        } else if extent.y >= extent.z {
+            1
+        } else {
+            2
+        };
+        let n = prims.len();
+        if extent[axis] <= 0.0 || depth >= SAH_MAX_DEPTH {
+            if n <= MAX_LEAF_PRIMS && extent[axis] <= 0.0 {
+                return None;
+            }
+            // All centroids coincide, or the tree is deep: split at the median index.
+            return Some((median_split(prims, axis), None));
+        }
+        let bin_of = |c: f64| {
+            (((c - cb.min[axis]) / extent[axis] * SAH_BINS as f64) as usize).min(SAH_BINS - 1)
+        };
+        let mut counts = [0usize; SAH_BINS];
+        let mut bins = [Side::EMPTY; SAH_BINS];
+        for p in prims.iter_mut() {
+            let b = bin_of(p.centroid[axis]);
+            p.bin = b as u32;
+            counts[b] += 1;
+            bins[b] = bins[b].with(p);
+        }
+        // The sweeps visit only the bins that hold primitives: a union with an empty bin
+        // changes nothing, and a split between two filled bins is the same split
+        // wherever between them it falls (the first such bin boundary is the one taken,
+        // as a sweep over all of them takes it). Most nodes are small, with a few of the
+        // twelve bins filled, and sweeping the empty ones was most of their cost.
+        let filled: ArrayVec<usize, SAH_BINS> = (0..SAH_BINS).filter(|&i| counts[i] > 0).collect();
+        // The union of `filled[j..]`, at `j`.
+        let mut right_area = [0.0; SAH_BINS];
+        let mut right_n = [0usize; SAH_BINS];
+        let (mut acc, mut acc_n) = (Aabb::EMPTY, 0);
+        for j in (1..filled.len()).rev() {
+            acc = acc.union(&bins[filled[j]].bounds);
+            acc_n += counts[filled[j]];
+            right_area[j] = acc.half_area();
+            right_n[j] = acc_n;
+        }
+        // `best`: how many filled bins lie below the cheapest split, and the first bin
+        // above it.
+        let (mut best_cost, mut best, mut best_bin) = (f64::INFINITY, 0, 0);
+        let (mut left, mut left_n) = (Aabb::EMPTY, 0);
+        for j in 1..filled.len() {
+            let below = filled[j - 1];
+            left = left.union(&bins[below].bounds);
+            left_n += counts[below];
+            let cost =
+                left.half_area() * self.groups(left_n) + right_area[j] * self.groups(right_n[j]);
+            if cost < best_cost {
+                best_cost = cost;
+                best = j;
+                best_bin = below + 1;
+            }
+        }
+        // In tests of a node's boxes, for a ray entering this node: a leaf tests all n;
+        // a split tests the node's boxes, then the side it enters.
+        let c = self.test_cost;
+        let leaf_cost = c * bounds.half_area() * self.groups(n);
+        let split_cost = bounds.half_area() + c * best_cost;
+        if best_bin == 0 || (n <= MAX_LEAF_PRIMS && leaf_cost <= split_cost) {
+            if n <= MAX_LEAF_PRIMS {
+                return None;
+            }
+            return Some((median_split(prims, axis), None));
+        }
+        let mut mid = 0;
+        for i in 0..n {
+            if (prims[i].bin as usize) < best_bin {
+                prims.swap(i, mid);
+                mid += 1;
+            }
+        }
+        // Each side's unions are those of its bins: min and max are exact, so they are
+        // the unions over its primitives, whatever the order.
+        let union = |f: &[usize]| f.iter().fold(Side::EMPTY, |s, &b| s.join(&bins[b]));
+        let (below, above) = filled.split_at(best);
+        Some((mid, Some([union(below), union(above)])))
+    }
 }
 
 /// A subtree as the build leaves it: built on one thread, into vectors of its own, or a
@@ -888,7 +981,7 @@ impl Part {
         let chosen = if prims.len() < split.parallel_from {
             None
         } else {
-            Builder::reserved(0, split).choose_split(prims, &side, depth)
+            split.choose_split(prims, &side, depth)
         };
         let Some((mid, sides)) = chosen else {
             return Part::Built(Builder::subtree(prims, depth, split, side));
@@ -992,7 +1085,7 @@ impl Builder {
         let split = if prims.len() <= 1 {
             None
         } else {
-            self.choose_split(prims, &side, depth)
+            self.split.choose_split(prims, &side, depth)
         };
         match split {
             None => {
@@ -1008,99 +1101,6 @@ impl Builder {
                 self.build_node(right, depth + 1, r);
             }
         }
-    }
-
-    /// Partitions `prims` (of [`Side`] `side`) and returns the split index, with both
-    /// sides where the SAH's bins give them; `None` for a leaf.
-    fn choose_split(
-        &self,
-        prims: &mut [BuildPrim],
-        side: &Side,
-        depth: usize,
-    ) -> Option<(usize, Option<[Side; 2]>)> {
-        let (bounds, cb) = (&side.bounds, &side.centroids);
-        let extent = cb.max - cb.min;
-        let axis = if extent.x >= extent.y && extent.x >= extent.z {
-            0
-        } else if extent.y >= extent.z {
-            1
-        } else {
-            2
-        };
-        let n = prims.len();
-        if extent[axis] <= 0.0 || depth >= SAH_MAX_DEPTH {
-            if n <= MAX_LEAF_PRIMS && extent[axis] <= 0.0 {
-                return None;
-            }
-            // All centroids coincide, or the tree is deep: split at the median index.
-            return Some((median_split(prims, axis), None));
-        }
-        let bin_of = |c: f64| {
-            (((c - cb.min[axis]) / extent[axis] * SAH_BINS as f64) as usize).min(SAH_BINS - 1)
-        };
-        let mut counts = [0usize; SAH_BINS];
-        let mut bins = [Side::EMPTY; SAH_BINS];
-        for p in prims.iter_mut() {
-            let b = bin_of(p.centroid[axis]);
-            p.bin = b as u32;
-            counts[b] += 1;
-            bins[b] = bins[b].with(p);
-        }
-        // The sweeps visit only the bins that hold primitives: a union with an empty bin
-        // changes nothing, and a split between two filled bins is the same split
-        // wherever between them it falls (the first such bin boundary is the one taken,
-        // as a sweep over all of them takes it). Most nodes are small, with a few of the
-        // twelve bins filled, and sweeping the empty ones was most of their cost.
-        let filled: ArrayVec<usize, SAH_BINS> = (0..SAH_BINS).filter(|&i| counts[i] > 0).collect();
-        // The union of `filled[j..]`, at `j`.
-        let mut right_area = [0.0; SAH_BINS];
-        let mut right_n = [0usize; SAH_BINS];
-        let (mut acc, mut acc_n) = (Aabb::EMPTY, 0);
-        for j in (1..filled.len()).rev() {
-            acc = acc.union(&bins[filled[j]].bounds);
-            acc_n += counts[filled[j]];
-            right_area[j] = acc.half_area();
-            right_n[j] = acc_n;
-        }
-        // `best`: how many filled bins lie below the cheapest split, and the first bin
-        // above it.
-        let (mut best_cost, mut best, mut best_bin) = (f64::INFINITY, 0, 0);
-        let (mut left, mut left_n) = (Aabb::EMPTY, 0);
-        for j in 1..filled.len() {
-            let below = filled[j - 1];
-            left = left.union(&bins[below].bounds);
-            left_n += counts[below];
-            let cost = left.half_area() * self.split.groups(left_n)
-                + right_area[j] * self.split.groups(right_n[j]);
-            if cost < best_cost {
-                best_cost = cost;
-                best = j;
-                best_bin = below + 1;
-            }
-        }
-        // In tests of a node's boxes, for a ray entering this node: a leaf tests all n;
-        // a split tests the node's boxes, then the side it enters.
-        let c = self.split.test_cost;
-        let leaf_cost = c * bounds.half_area() * self.split.groups(n);
-        let split_cost = bounds.half_area() + c * best_cost;
-        if best_bin == 0 || (n <= MAX_LEAF_PRIMS && leaf_cost <= split_cost) {
-            if n <= MAX_LEAF_PRIMS {
-                return None;
-            }
-            return Some((median_split(prims, axis), None));
-        }
-        let mut mid = 0;
-        for i in 0..n {
-            if (prims[i].bin as usize) < best_bin {
-                prims.swap(i, mid);
-                mid += 1;
-            }
-        }
-        // Each side's unions are those of its bins: min and max are exact, so they are
-        // the unions over its primitives, whatever the order.
-        let union = |f: &[usize]| f.iter().fold(Side::EMPTY, |s, &b| s.join(&bins[b]));
-        let (below, above) = filled.split_at(best);
-        Some((mid, Some([union(below), union(above)])))
     }
 }
 
@@ -1523,11 +1523,8 @@ mod tests {
                 })
                 .collect();
             let side = Side::of(&prims);
-            let builder = Builder {
-                split: Split { test_cost, lanes, parallel_from: usize::MAX },
-                ..Builder::default()
-            };
-            let Some((mid, Some([below, above]))) = builder.choose_split(&mut prims, &side, 0)
+            let split = Split { test_cost, lanes, parallel_from: usize::MAX };
+            let Some((mid, Some([below, above]))) = split.choose_split(&mut prims, &side, 0)
             else {
                 return Ok(());
             };
