@@ -50,6 +50,19 @@ struct Node {
     count: u16,
 }
 
+impl Node {
+    /// A node over `side`'s box, its references (a leaf's primitives, an inner node's
+    /// second child) set once known.
+    fn over(side: &Side) -> Node {
+        Node {
+            min: side.bounds.min,
+            max: side.bounds.max,
+            offset: 0,
+            count: 0,
+        }
+    }
+}
+
 /// An interior node for traversal: the boxes of both children, so one visit tests
 /// both and goes to the nearer first (and skips a child the ray misses without
 /// pushing it).
@@ -169,6 +182,18 @@ impl Side {
             centroids: self.centroids.union(&o.centroids),
         }
     }
+}
+
+/// `prims` cut at `mid` into a split's two halves, each with its [`Side`]: the SAH's
+/// bins give both (`sides`), a median split's are folded from its halves.
+fn cut(
+    prims: &mut [BuildPrim],
+    mid: usize,
+    sides: Option<[Side; 2]>,
+) -> [(&mut [BuildPrim], Side); 2] {
+    let (left, right) = prims.split_at_mut(mid);
+    let [l, r] = sides.unwrap_or_else(|| [Side::of(left), Side::of(right)]);
+    [(left, l), (right, r)]
 }
 
 /// Splits `prims` at the median centroid along `axis`, ties broken by index so the tree
@@ -986,19 +1011,12 @@ impl Part {
         let Some((mid, sides)) = chosen else {
             return Part::Built(Builder::subtree(prims, depth, split, side));
         };
-        let (left, right) = prims.split_at_mut(mid);
-        let [l, r] = sides.unwrap_or_else(|| [Side::of(left), Side::of(right)]);
+        let [(left, l), (right, r)] = cut(prims, mid, sides);
         let halves = rayon::join(
             || Part::build(left, depth + 1, split, l),
             || Part::build(right, depth + 1, split, r),
         );
-        let node = Node {
-            min: side.bounds.min,
-            max: side.bounds.max,
-            offset: 0,
-            count: 0,
-        };
-        Part::Split(node, Box::new(halves))
+        Part::Split(Node::over(&side), Box::new(halves))
     }
 
     /// Appends the subtree to `whole` in depth-first order, the layout building it in
@@ -1076,12 +1094,7 @@ impl Builder {
     /// the parent's binning where its split was the SAH's.
     fn build_node(&mut self, prims: &mut [BuildPrim], depth: usize, side: Side) {
         let me = self.nodes.len();
-        self.nodes.push(Node {
-            min: side.bounds.min,
-            max: side.bounds.max,
-            offset: 0,
-            count: 0,
-        });
+        self.nodes.push(Node::over(&side));
         let split = if prims.len() <= 1 {
             None
         } else {
@@ -1094,8 +1107,7 @@ impl Builder {
                 self.order.extend(prims.iter().map(|p| p.index));
             }
             Some((mid, sides)) => {
-                let (left, right) = prims.split_at_mut(mid);
-                let [l, r] = sides.unwrap_or_else(|| [Side::of(left), Side::of(right)]);
+                let [(left, l), (right, r)] = cut(prims, mid, sides);
                 self.build_node(left, depth + 1, l);
                 self.nodes[me].offset = self.nodes.len() as u32;
                 self.build_node(right, depth + 1, r);
