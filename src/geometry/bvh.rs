@@ -186,6 +186,8 @@ impl Side {
 
 /// `prims` cut at `mid` into a split's two halves, each with its [`Side`]: the SAH's
 /// bins give both (`sides`), a median split's are folded from its halves.
+// Inlined: left a call, it returned the halves through memory, 30 instructions a node.
+#[inline(always)]
 fn cut(
     prims: &mut [BuildPrim],
     mid: usize,
