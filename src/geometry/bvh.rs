@@ -934,8 +934,8 @@ impl Split {
         }
         // The sweeps visit only the bins that hold primitives: a union with an empty bin
         // changes nothing, and a split between two filled bins is the same split
-        // wherever between them it falls (the first such bin boundary is the one taken,
-        // as a sweep over all of them takes it). Most nodes are small, with a few of the
+        // wherever between them it falls (of equally cheap splits the lowest is taken,
+        // as a sweep over all twelve took it). Most nodes are small, with a few of the
         // twelve bins filled, and sweeping the empty ones was most of their cost.
         let filled: ArrayVec<usize, SAH_BINS> = (0..SAH_BINS).filter(|&i| counts[i] > 0).collect();
         // The union of `filled[j..]`, at `j`.
@@ -948,9 +948,8 @@ impl Split {
             right_area[j] = acc.half_area();
             right_n[j] = acc_n;
         }
-        // `best`: how many filled bins lie below the cheapest split, and the first bin
-        // above it.
-        let (mut best_cost, mut best, mut best_bin) = (f64::INFINITY, 0, 0);
+        // `best`: how many filled bins lie below the cheapest split (0: no split).
+        let (mut best_cost, mut best) = (f64::INFINITY, 0);
         let (mut left, mut left_n) = (Aabb::EMPTY, 0);
         for j in 1..filled.len() {
             let below = filled[j - 1];
@@ -961,7 +960,6 @@ impl Split {
             if cost < best_cost {
                 best_cost = cost;
                 best = j;
-                best_bin = below + 1;
             }
         }
         // In tests of a node's boxes, for a ray entering this node: a leaf tests all n;
@@ -969,15 +967,16 @@ impl Split {
         let c = self.test_cost;
         let leaf_cost = c * bounds.half_area() * self.groups(n);
         let split_cost = bounds.half_area() + c * best_cost;
-        if best_bin == 0 || (n <= MAX_LEAF_PRIMS && leaf_cost <= split_cost) {
+        if best == 0 || (n <= MAX_LEAF_PRIMS && leaf_cost <= split_cost) {
             if n <= MAX_LEAF_PRIMS {
                 return None;
             }
             return Some((median_split(prims, axis), None));
         }
+        let last_below = filled[best - 1];
         let mut mid = 0;
         for i in 0..n {
-            if (prims[i].bin as usize) < best_bin {
+            if (prims[i].bin as usize) <= last_below {
                 prims.swap(i, mid);
                 mid += 1;
             }
