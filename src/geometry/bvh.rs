@@ -237,20 +237,24 @@ impl Bvh {
     }
 
     fn build_from(bounds: &[Aabb], test_cost: f64, lanes: usize, parallel_from: usize) -> Bvh {
-        let mut prims: Vec<BuildPrim> = bounds
-            .iter()
-            .enumerate()
-            .filter(|(_, b)| !b.is_empty())
-            .map(|(i, b)| {
-                let bounds = b.padded();
-                BuildPrim {
-                    bounds,
-                    centroid: bounds.centroid(),
-                    index: i as u32,
-                    bin: 0,
-                }
-            })
-            .collect();
+        let prim = |(i, b): (usize, &Aabb)| {
+            let bounds = b.padded();
+            BuildPrim {
+                bounds,
+                centroid: bounds.centroid(),
+                index: i as u32,
+                bin: 0,
+            }
+        };
+        // Made in place, one per box (on every worker when building in parallel: for
+        // 100 000 objects 5.5 ms on one thread, most of it the new vector's page
+        // faults); the empty boxes (objects without bounds), rare, are then dropped.
+        let mut prims: Vec<BuildPrim> = if parallel_from != usize::MAX {
+            bounds.par_iter().enumerate().map(prim).collect()
+        } else {
+            bounds.iter().enumerate().map(prim).collect()
+        };
+        prims.retain(|p| !bounds[p.index as usize].is_empty());
         let built = if prims.is_empty() {
             Builder::default()
         } else {
@@ -286,28 +290,21 @@ impl Bvh {
     /// `parallel`, where for 100 000 objects it was 14 ms on one thread).
     fn flatten(&mut self, parallel: bool) {
         let nodes = &self.nodes;
-        let (mut inner, mut leaves) = (0, 0);
-        // Each node's reference: `LEAF | its leaf number`, or its inner node number.
-        let refs: Vec<u32> = nodes
-            .iter()
-            .map(|n| {
-                let (count, tag) = if n.count > 0 {
-                    (&mut leaves, LEAF)
-                } else {
-                    (&mut inner, 0)
-                };
-                *count += 1;
-                tag | (*count - 1)
-            })
-            .collect();
-        self.leaves = nodes
-            .iter()
-            .filter(|n| n.count > 0)
-            .map(|n| (n.offset, n.count as u32))
-            .collect();
-        let interior: Vec<u32> = (0..nodes.len() as u32)
-            .filter(|&i| nodes[i as usize].count == 0)
-            .collect();
+        // Each node's reference (`LEAF | its leaf number`, or its inner node number),
+        // the leaves, and the inner nodes' places in `nodes`, in one pass: a binary
+        // tree of n nodes has (n + 1) / 2 leaves.
+        let mut refs = Vec::with_capacity(nodes.len());
+        let mut leaves = Vec::with_capacity(nodes.len().div_ceil(2));
+        let mut interior = Vec::with_capacity(nodes.len() / 2);
+        for (i, n) in (0..).zip(nodes) {
+            if n.count > 0 {
+                refs.push(LEAF | leaves.len() as u32);
+                leaves.push((n.offset, n.count as u32));
+            } else {
+                refs.push(interior.len() as u32);
+                interior.push(i);
+            }
+        }
         let node = |&i: &u32| {
             let (l, r) = (i as usize + 1, nodes[i as usize].offset as usize);
             let (a, b) = (nodes[l], nodes[r]);
@@ -329,6 +326,7 @@ impl Bvh {
         } else {
             interior.iter().map(node).unzip()
         };
+        self.leaves = leaves;
         self.root = refs[0];
         self.wide_root = self.root;
         if self.inner.len() >= WIDE_FROM {
