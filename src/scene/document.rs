@@ -15,6 +15,7 @@
 use std::collections::BTreeMap;
 use std::fmt;
 
+use arrayvec::ArrayVec;
 use serde::de::{self, MapAccess, Visitor};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
@@ -289,7 +290,7 @@ pub struct ObjectDoc {
     /// object → world, applied in the listed order.
     #[serde(
         default,
-        deserialize_with = "present",
+        deserialize_with = "present_steps",
         skip_serializing_if = "Option::is_none"
     )]
     pub transform: Option<Vec<StepDoc>>,
@@ -411,6 +412,49 @@ fn null_for<'de, T: Deserialize<'de>, E: de::Error>() -> E {
     match T::deserialize(de::value::UnitDeserializer::<E>::new()) {
         Err(e) => e,
         Ok(_) => E::invalid_type(de::Unexpected::Unit, &"a value"),
+    }
+}
+
+/// [`present`] for a transform's steps, listed in a vector of their own length: serde's
+/// `Vec` grows from room for four, twice what the one or two steps most objects list
+/// take (for 100 000 objects, 8 MB of pages touched while the document is read).
+fn present_steps<'de, D: Deserializer<'de>>(d: D) -> Result<Option<Vec<StepDoc>>, D::Error> {
+    present::<D, Steps>(d).map(|s| s.map(|s| s.0))
+}
+
+/// A transform's steps, read as `Vec<StepDoc>` reads them, into a vector of their own
+/// length.
+struct Steps(Vec<StepDoc>);
+
+impl<'de> Deserialize<'de> for Steps {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = Steps;
+            // `Vec`'s own words, so that a wrong type reads as it always did.
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a sequence")
+            }
+            fn visit_seq<A: de::SeqAccess<'de>>(self, mut seq: A) -> Result<Steps, A::Error> {
+                let mut few = ArrayVec::<StepDoc, 4>::new();
+                while let Some(step) = seq.next_element()? {
+                    if let Err(full) = few.try_push(step) {
+                        let mut all: Vec<StepDoc> = few.into_iter().collect();
+                        all.push(full.element());
+                        while let Some(step) = seq.next_element()? {
+                            all.push(step);
+                        }
+                        all.shrink_to_fit();
+                        return Ok(Steps(all));
+                    }
+                }
+                // Not `collect`, which makes room for four at least.
+                let mut steps = Vec::with_capacity(few.len());
+                steps.extend(few);
+                Ok(Steps(steps))
+            }
+        }
+        d.deserialize_seq(V)
     }
 }
 
@@ -650,6 +694,53 @@ mod tests {
                 outcome(serde_json::from_value::<derived::ShapeName>(value)),
                 "from a value {text}"
             );
+        }
+    }
+
+    #[test]
+    fn steps_read_as_a_vec_reads_them_into_a_vector_of_their_own_length() {
+        #[derive(Debug, Serialize, Deserialize)]
+        struct Plain {
+            #[serde(default, deserialize_with = "present")]
+            transform: Option<Vec<StepDoc>>,
+        }
+        #[derive(Debug, Serialize, Deserialize)]
+        struct Ours {
+            #[serde(default, deserialize_with = "present_steps")]
+            transform: Option<Vec<StepDoc>>,
+        }
+        let step = |k: usize| format!(r#"{{"translate": [{k}, 0, 1]}}"#);
+        let steps = |n: usize| (0..n).map(step).collect::<Vec<_>>().join(", ");
+        let mut texts: Vec<String> = [0, 1, 2, 3, 4, 5, 9]
+            .map(|n| format!(r#"{{"transform": [{}]}}"#, steps(n)))
+            .into();
+        for bad in [
+            "null",
+            "3",
+            r#""scale""#,
+            "{}",
+            r#"[null]"#,
+            r#"[{"scale": 2}, 7]"#,
+            r#"[{"scale": 2}, {"scale": 2}, {"scale": 2}, {"scale": 2}, {"turn": 1}]"#,
+        ] {
+            texts.push(format!(r#"{{"transform": {bad}}}"#));
+        }
+        texts.push("{}".into());
+        for text in &texts {
+            assert_eq!(
+                outcome(serde_json::from_str::<Ours>(text)),
+                outcome(serde_json::from_str::<Plain>(text)),
+                "from text {text}"
+            );
+            let value: serde_json::Value = serde_json::from_str(text).unwrap();
+            assert_eq!(
+                outcome(serde_json::from_value::<Ours>(value.clone())),
+                outcome(serde_json::from_value::<Plain>(value)),
+                "from a value {text}"
+            );
+            if let Ok(Ours { transform: Some(t) }) = serde_json::from_str::<Ours>(text) {
+                assert_eq!(t.capacity(), t.len(), "{text}");
+            }
         }
     }
 
