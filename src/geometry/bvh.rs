@@ -237,6 +237,7 @@ impl Bvh {
     }
 
     fn build_from(bounds: &[Aabb], test_cost: f64, lanes: usize, parallel_from: usize) -> Bvh {
+        let parallel = parallel_from != usize::MAX;
         let prim = |(i, b): (usize, &Aabb)| {
             let bounds = b.padded();
             BuildPrim {
@@ -249,7 +250,7 @@ impl Bvh {
         // Made in place, one per box (on every worker when building in parallel: for
         // 100 000 objects 5.5 ms on one thread, most of it the new vector's page
         // faults); the empty boxes (objects without bounds), rare, are then dropped.
-        let mut prims: Vec<BuildPrim> = if parallel_from != usize::MAX {
+        let mut prims: Vec<BuildPrim> = if parallel {
             bounds.par_iter().enumerate().map(prim).collect()
         } else {
             bounds.iter().enumerate().map(prim).collect()
@@ -277,7 +278,7 @@ impl Bvh {
             order: built.order,
         };
         if !bvh.nodes.is_empty() {
-            bvh.flatten(parallel_from != usize::MAX);
+            bvh.flatten(parallel);
             bvh.root32 = box32(&bvh.bounds());
         }
         bvh
