@@ -14,4 +14,4 @@ pub use hit::{Face, Hit, Probe, Surface};
 pub use ray::Ray;
 pub use shapes::{CanonicalShape, Mesh, NeedsData, Shape, ShapeName};
 pub use transform::Transform;
-pub use world::World;
+pub use world::{ShadowHint, World};

@@ -23,7 +23,7 @@ use std::cell::Cell;
 use glam::DVec3;
 
 use crate::geometry::bounds::lanes_of;
-use crate::geometry::{Hit, Ray, Surface, Transform, World};
+use crate::geometry::{Hit, Ray, ShadowHint, Surface, Transform, World};
 use crate::scene::{Light, Material, Scene};
 
 /// Smallest `λ` of a secondary ray's hit.
@@ -444,7 +444,7 @@ pub struct Shader<'a> {
     /// (render instructions: `cubes-10k` −12 %, `spheres-1k` −6 %, `classic` −3 %).
     /// Each depth keeps its own, so that a mirror's rays, shaded between two pixels'
     /// primary hits, do not replace theirs.
-    shadow_hints: [[Cell<Option<u32>>; HINTED_LIGHTS]; HINTED_DEPTHS],
+    shadow_hints: [[Cell<ShadowHint>; HINTED_LIGHTS]; HINTED_DEPTHS],
 }
 
 impl<'a> Shader<'a> {

@@ -5,7 +5,7 @@
 use std::sync::Arc;
 
 use glam::DVec3;
-use raytile::geometry::Ray;
+use raytile::geometry::{Ray, ShadowHint};
 use raytile::render::{Packet, Rect, Renderer};
 use raytile::scene::{Limits, parse};
 use serde_json::{Value, json};
@@ -127,17 +127,17 @@ fn bvh_finds_the_same_hit_as_brute_force() {
             );
             // A hint, right or wrong, changes no answer; what it becomes blocks the ray.
             let n = r.world.len() as u32;
-            let mut hint = (rng.next() < 0.8).then(|| ((rng.next() * n as f64) as u32).min(n - 1));
-            let given = hint;
+            let given = (rng.next() < 0.8).then(|| ((rng.next() * n as f64) as u32).min(n - 1));
+            let mut hint = ShadowHint::new(given);
             assert_eq!(r.world.occluded_hinted(&ray, 1e-9, 1.0, &mut hint), shadow);
-            match hint {
+            match hint.object() {
                 None => assert!(!shadow, "a blocked ray names its blocker"),
                 Some(i) => {
                     let alone = r.world.intersect_object(i, &ray, 1e-9, 1.0, &mut ());
                     assert!(alone.is_some(), "hint {given:?} became {i}, which misses");
                     // Given back, the blocker is the answer again, and stays.
                     assert!(r.world.occluded_hinted(&ray, 1e-9, 1.0, &mut hint));
-                    assert_eq!(hint, Some(i));
+                    assert_eq!(hint.object(), Some(i));
                 }
             }
         }
