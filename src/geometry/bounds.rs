@@ -481,11 +481,11 @@ impl SlabRay4 {
             }
         }
         let first = rays[0].origin;
+        let d = d.map(f32x4::new);
         if rays.iter().all(|r| r.origin == first) {
             // Primary rays share the camera: its bounds once.
-            return SlabRay4::shared(d.map(f32x4::new), first);
+            return SlabRay4::shared(d, d.map(|d| f32x4::splat(1.0) / d), first);
         }
-        let d = d.map(f32x4::new);
         if !fits(&d) {
             return None;
         }
@@ -526,22 +526,26 @@ impl SlabRay4 {
     /// of gathering four rays.
     #[inline]
     pub fn splat(ray: &Ray) -> Option<SlabRay4> {
-        let d = [0, 1, 2].map(|a| f32x4::splat(ray.dir[a] as f32));
-        SlabRay4::shared(d, ray.origin)
+        let d = ray.dir.to_array().map(|d| d as f32);
+        // The three axes' reciprocals in one division, each then in every lane: the
+        // same numbers as dividing each axis's four copies, in a third of the divisions
+        // (every lone shadow ray through a four-wide tree makes them).
+        let [x, y, z, _] = (f32x4::splat(1.0) / f32x4::new([d[0], d[1], d[2], 1.0])).to_array();
+        SlabRay4::shared(d.map(f32x4::splat), [x, y, z].map(f32x4::splat), ray.origin)
     }
 
-    /// Rays of directions `d` (axis by axis, as `f32`) from one `origin`.
+    /// Rays of directions `d` (axis by axis, as `f32`) from one `origin`, `inv` their
+    /// reciprocals.
     #[inline(always)]
-    fn shared(d: [f32x4; 3], origin: DVec3) -> Option<SlabRay4> {
+    fn shared(d: [f32x4; 3], inv: [f32x4; 3], origin: DVec3) -> Option<SlabRay4> {
         if !(fits(&d) && near(origin.x) && near(origin.y) && near(origin.z)) {
             return None;
         }
         let (x, y, z) = (origin.x, origin.y, origin.z);
-        let one = f32x4::splat(1.0);
         Some(SlabRay4 {
             o_down: [round_down(x), round_down(y), round_down(z)].map(f32x4::splat),
             o_up: [round_up(x), round_up(y), round_up(z)].map(f32x4::splat),
-            inv: [one / d[0], one / d[1], one / d[2]],
+            inv,
         })
     }
 
@@ -815,7 +819,36 @@ mod tests {
 
     use proptest::prelude::*;
 
+    /// A direction component of any size, zeros of both signs and subnormals included.
+    fn component() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            -10.0f64..10.0,
+            -1e-30f64..1e-30,
+            Just(0.0),
+            Just(-0.0),
+            Just(1e-310),
+            Just(-1e-320),
+            -1e35f64..1e35,
+            proptest::num::f64::NORMAL,
+        ]
+    }
+
     proptest! {
+        /// A lone ray's four-lane form, its reciprocals found in one division, is four
+        /// copies of the ray as a packet makes them, lane by lane.
+        #[test]
+        fn any_splat_ray_is_four_copies_of_it(
+            o in prop::array::uniform3(-100.0f64..100.0),
+            d in prop::array::uniform3(component()),
+        ) {
+            let r = ray(o, d);
+            let (one, four) = (SlabRay4::splat(&r), SlabRay4::new(&[r; 4]));
+            prop_assert_eq!(one.is_some(), four.is_some());
+            if let (Some(one), Some(four)) = (one, four) {
+                prop_assert_eq!(format!("{one:?}"), format!("{four:?}"));
+            }
+        }
+
         #[test]
         fn rounding_both_ways_is_next_down_and_next_up(
             x in prop_oneof![
