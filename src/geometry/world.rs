@@ -562,7 +562,7 @@ impl World {
 pub type SharedWorld = Arc<World>;
 
 /// The object that blocked the last of a run of shadow rays, if one did, for
-/// [`World::occluded_hinted`] to test first.
+/// [`World::occluded_hinted`] to test first; the default is none.
 ///
 /// One 32-bit word, the object's index plus one (0 for none). As an `Option<u32>`,
 /// written by the world in two stores (its tag, then the index) and read back by the
@@ -572,9 +572,6 @@ pub type SharedWorld = Arc<World>;
 pub struct ShadowHint(Option<NonZeroU32>);
 
 impl ShadowHint {
-    /// No hint: nothing is tested first.
-    pub const NONE: ShadowHint = ShadowHint(None);
-
     /// A hint of object `object`, or none. (Object `u32::MAX`, which no world holds,
     /// gives none.)
     #[inline(always)]
@@ -598,8 +595,7 @@ mod tests {
     fn a_shadow_hint_is_one_word_and_gives_back_the_object_it_was_made_of() {
         // One word, so that writing it and reading it back are one store and one load.
         assert_eq!(std::mem::size_of::<ShadowHint>(), 4);
-        assert_eq!(ShadowHint::default(), ShadowHint::NONE);
-        assert_eq!(ShadowHint::NONE.object(), None);
+        assert_eq!(ShadowHint::default().object(), None);
         assert_eq!(ShadowHint::new(None).object(), None);
         for i in [0, 1, 7, 65_535, u32::MAX - 1] {
             assert_eq!(ShadowHint::new(Some(i)).object(), Some(i), "object {i}");
