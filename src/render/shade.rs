@@ -514,6 +514,9 @@ impl Shader<'_> {
     /// The colour `ray` brings back given its first hit `closest` (found by the caller,
     /// e.g. for a packet of primary rays, exactly as [`Shader::trace_as`] finds it):
     /// everything [`Shader::trace_as`] does after its search, counting `ray` first.
+    // Always inlined, the hit's shading a call of its own: most of a mirror's rays
+    // miss, and a call for each cost more than the miss (the background) itself.
+    #[inline(always)]
     pub fn shade_as<P: ShadingProbe, C: Conventions>(
         &self,
         ray: &Ray,
@@ -524,9 +527,21 @@ impl Shader<'_> {
     ) -> DVec3 {
         rays.0 += 1;
         probe.closest(closest.as_ref());
-        let Some(hit) = closest else {
-            return self.scene.background;
-        };
+        match closest {
+            Some(hit) => self.shade_hit_as::<P, C>(ray, depth, hit, rays, probe),
+            None => self.scene.background,
+        }
+    }
+
+    /// [`Shader::shade_as`] of a ray that hit something, once it is counted.
+    fn shade_hit_as<P: ShadingProbe, C: Conventions>(
+        &self,
+        ray: &Ray,
+        depth: u32,
+        hit: Hit,
+        rays: &mut RayCount,
+        probe: &mut P,
+    ) -> DVec3 {
         let (at, ambient) = self.hit_point_as::<C>(ray, &hit);
         probe.surface(&hit, &at.s, at.n, at.m, ambient);
         let c = self.add_lights_as::<P, C>(ray, depth, &at, ambient, rays, probe);
