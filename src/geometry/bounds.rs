@@ -291,6 +291,12 @@ pub trait Lanes4: Copy {
     fn le(self, a: Self::V, b: Self::V) -> u32;
     /// Where `a ≠ b` (and where either is NaN).
     fn ne(self, a: Self::V, b: Self::V) -> u32;
+    /// The square root of each lane.
+    fn sqrt(self, a: Self::V) -> Self::V;
+    /// Each lane's magnitude (its sign bit cleared, as `f64::abs`).
+    fn abs(self, a: Self::V) -> Self::V;
+    /// `x` where `a > b`, else `y` (where either is NaN too), lane by lane.
+    fn pick_gt(self, a: Self::V, b: Self::V, x: Self::V, y: Self::V) -> Self::V;
 }
 
 /// [`Lanes4`] in two SSE2 registers (the `wide` crate's `f64x4`), on any processor.
@@ -333,6 +339,21 @@ impl Lanes4 for Portable {
     #[inline(always)]
     fn ne(self, a: f64x4, b: f64x4) -> u32 {
         a.simd_ne(b).to_bitmask()
+    }
+
+    #[inline(always)]
+    fn sqrt(self, a: f64x4) -> f64x4 {
+        a.sqrt()
+    }
+
+    #[inline(always)]
+    fn abs(self, a: f64x4) -> f64x4 {
+        a.abs()
+    }
+
+    #[inline(always)]
+    fn pick_gt(self, a: f64x4, b: f64x4, x: f64x4, y: f64x4) -> f64x4 {
+        a.simd_gt(b).select(x, y)
     }
 }
 

@@ -184,6 +184,24 @@ impl Lanes4 for Avx2 {
     fn ne(self, a: F64x4Avx, b: F64x4Avx) -> u32 {
         compared::<_CMP_NEQ_UQ>(a, b)
     }
+
+    #[inline(always)]
+    fn sqrt(self, a: F64x4Avx) -> F64x4Avx {
+        // SAFETY: an `Avx2` exists only where the processor has AVX2 (`detect`).
+        F64x4Avx(unsafe { _mm256_sqrt_pd(a.0) })
+    }
+
+    #[inline(always)]
+    fn abs(self, a: F64x4Avx) -> F64x4Avx {
+        // SAFETY: as above.
+        F64x4Avx(unsafe { _mm256_andnot_pd(_mm256_set1_pd(-0.0), a.0) })
+    }
+
+    #[inline(always)]
+    fn pick_gt(self, a: F64x4Avx, b: F64x4Avx, x: F64x4Avx, y: F64x4Avx) -> F64x4Avx {
+        // SAFETY: as above.
+        F64x4Avx(unsafe { _mm256_blendv_pd(y.0, x.0, _mm256_cmp_pd::<_CMP_GT_OQ>(a.0, b.0)) })
+    }
 }
 
 instruction_sets!(
