@@ -535,7 +535,8 @@ fn light8_in<L: Lanes4>(a: Eight<L>, h: &Hits8, light: &Light) -> Lit8 {
         a.mul3(a.splat3(colour), a.load3(&h.specular)),
         a.load(&power),
     );
-    // A black specular adds the lone term's `+0` (`colour ⊙ m.specular · 0` may be −0).
+    // A black specular adds the lone term's `+0`: `colour ⊙ m.specular · 0` may be −0,
+    // or NaN where a colour is beyond the numbers.
     let zero = a.splat(0.0);
     let has = a.load(&h.has_specular);
     let specular = [
