@@ -301,6 +301,12 @@ fn facing<A: Arith>(a: A, to_light: [A::N; 3], n: [A::N; 3], v: [A::N; 3]) -> Fa
     }
 }
 
+/// `v = −d/|d|`, the unit vector from a hit back toward the viewer along `d`.
+#[inline(always)]
+fn toward_viewer(dir: DVec3) -> DVec3 {
+    -dir.normalize()
+}
+
 /// `max(0, cosine)^shininess`.
 #[inline(always)]
 fn highlight(cosine: f64, shininess: f64) -> f64 {
@@ -402,7 +408,7 @@ pub fn light_term_as<C: Conventions>(
     if outside {
         return term;
     }
-    let v = -dir.normalize();
+    let v = toward_viewer(dir);
     let f = facing(One, to_light, normal, v.to_array());
     term.l = DVec3::from_array(f.l);
     term.n_dot_l = f.n_dot_l;
@@ -424,23 +430,23 @@ pub fn light_term_as<C: Conventions>(
 /// numbers together. Lanes without a hit carry a copy of a lane with one.
 pub(super) struct Hits8 {
     /// The hit points.
-    pub p: [[f64; 8]; 3],
+    p: [[f64; 8]; 3],
     /// The normals, turned to face the rays.
-    pub n: [[f64; 8]; 3],
+    n: [[f64; 8]; 3],
     /// `v = −d/|d|`, toward the viewer.
-    pub v: [[f64; 8]; 3],
+    v: [[f64; 8]; 3],
     /// The materials' diffuse colours.
-    pub diffuse: [[f64; 8]; 3],
+    diffuse: [[f64; 8]; 3],
     /// The materials' specular colours.
-    pub specular: [[f64; 8]; 3],
+    specular: [[f64; 8]; 3],
     /// The materials' shininess.
-    pub shininess: [f64; 8],
+    shininess: [f64; 8],
     /// The lanes whose material has a specular colour.
-    pub specular_lanes: u32,
+    specular_lanes: u32,
     /// 1 in the lanes of `specular_lanes`, 0 in the others.
-    pub has_specular: [f64; 8],
+    has_specular: [f64; 8],
     /// The lanes with a hit.
-    pub live: u32,
+    live: u32,
 }
 
 impl Hits8 {
@@ -462,7 +468,7 @@ impl Hits8 {
     /// another's, which only keeps the lane's numbers ordinary.
     #[inline(always)]
     pub fn put(&mut self, k: usize, live: bool, s: &Surface, n: DVec3, m: &Material, dir: DVec3) {
-        let v = -dir.normalize();
+        let v = toward_viewer(dir);
         for (to, from) in [
             (&mut self.p, s.point),
             (&mut self.n, n),
