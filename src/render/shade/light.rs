@@ -441,13 +441,17 @@ pub(super) struct Hits8 {
     specular: [[f64; 8]; 3],
     /// The materials' shininess.
     shininess: [f64; 8],
-    /// The lanes whose material has a specular colour.
-    specular_lanes: u32,
-    /// 1 in the lanes of `specular_lanes`, 0 in the others.
+    /// 1 in the lanes with a hit whose material has a specular colour, 0 in the others:
+    /// the choice of the lone term's `+0` is made in lanes, and the lanes that call
+    /// `pow` are read from it.
     has_specular: [f64; 8],
     /// The lanes with a hit.
     live: u32,
 }
+
+/// A packet lane's hit, as [`Hits8::fill`] takes it: its surface record, its normal
+/// facing the ray, its material, the ray's direction.
+pub(super) type HitLane<'a> = (&'a Surface, DVec3, &'a Material, DVec3);
 
 impl Hits8 {
     /// No lanes yet.
@@ -458,16 +462,29 @@ impl Hits8 {
         diffuse: [[0.0; 8]; 3],
         specular: [[0.0; 8]; 3],
         shininess: [0.0; 8],
-        specular_lanes: 0,
         has_specular: [0.0; 8],
         live: 0,
     };
 
-    /// Puts into lane `k` a hit's point, its normal `n` facing the ray, its material
-    /// and the ray's direction: the lane's own hit where `live`, else a copy of
-    /// another's, which only keeps the lane's numbers ordinary.
+    /// Fills the lanes of a [`Hits8::EMPTY`] from `hit(k)`, lane `k`'s hit if it has
+    /// one. A lane without takes a copy of the first lane with one, which only keeps
+    /// its numbers ordinary (no 0/0 in it); a packet without any hit leaves every lane
+    /// empty. Filled in place: returned, the 1.1 KB of lanes were copied once more.
     #[inline(always)]
-    pub fn put(&mut self, k: usize, live: bool, s: &Surface, n: DVec3, m: &Material, dir: DVec3) {
+    pub fn fill<'a>(&mut self, hit: impl Fn(usize) -> Option<HitLane<'a>>) {
+        let first = (0..8).find(|&k| hit(k).is_some()).unwrap_or(0);
+        for k in 0..8 {
+            let live = hit(k).is_some();
+            if let Some(lane) = hit(if live { k } else { first }) {
+                self.put(k, live, lane);
+            }
+        }
+    }
+
+    /// Puts into lane `k` a hit's point, its normal `n` facing the ray, its material
+    /// and the ray's direction: the lane's own hit where `live`, else another's.
+    #[inline(always)]
+    fn put(&mut self, k: usize, live: bool, (s, n, m, dir): HitLane) {
         let v = toward_viewer(dir);
         for (to, from) in [
             (&mut self.p, s.point),
@@ -482,7 +499,6 @@ impl Hits8 {
         if live {
             self.live |= 1 << k;
             if m.specular != DVec3::ZERO {
-                self.specular_lanes |= 1 << k;
                 self.has_specular[k] = 1.0;
             }
         }
@@ -533,8 +549,9 @@ fn light8_in<L: Lanes4>(a: Eight<L>, h: &Hits8, light: &Light) -> Lit8 {
     let diffuse = a.scale(a.mul3(a.splat3(colour), a.load3(&h.diffuse)), f.lambert);
     // `pow` lane by lane, where the lone term calls it.
     let r_dot_v = a.store(f.r_dot_v);
+    let (zero, has) = (a.splat(0.0), a.load(&h.has_specular));
     let mut power = [0.0; 8];
-    for k in lanes_of(h.specular_lanes & inside) {
+    for k in lanes_of(a.ne(has, zero) & inside) {
         power[k] = highlight(r_dot_v[k], h.shininess[k]);
     }
     let specular = a.scale(
@@ -543,8 +560,6 @@ fn light8_in<L: Lanes4>(a: Eight<L>, h: &Hits8, light: &Light) -> Lit8 {
     );
     // A black specular adds the lone term's `+0`: `colour ⊙ m.specular · 0` may be −0,
     // or NaN where a colour is beyond the numbers.
-    let zero = a.splat(0.0);
-    let has = a.load(&h.has_specular);
     let specular = [
         a.pick_gt(has, zero, specular[0], zero),
         a.pick_gt(has, zero, specular[1], zero),
@@ -683,13 +698,7 @@ mod tests {
         lights: &[Light],
     ) -> Result<(), TestCaseError> {
         let mut h = Hits8::EMPTY;
-        let first = hits.iter().position(Option::is_some).unwrap_or(0);
-        for k in 0..8 {
-            let lane = if hits[k].is_some() { k } else { first };
-            if let Some((s, n, m, dir)) = &hits[lane] {
-                h.put(k, lane == k, s, *n, m, *dir);
-            }
-        }
+        h.fill(|k| hits[k].as_ref().map(|(s, n, m, dir)| (s, *n, m, *dir)));
         for light in lights {
             let got = light8_in(a, &h, light);
             for (k, hit) in hits.iter().enumerate() {

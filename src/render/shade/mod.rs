@@ -482,13 +482,7 @@ impl Shader<'_> {
             }
         }
         let mut hits8 = light::Hits8::EMPTY;
-        let first = hits.iter().position(Option::is_some).unwrap_or(0);
-        for k in 0..8 {
-            let lane = if at[k].is_some() { k } else { first };
-            if let Some(a) = &at[lane] {
-                hits8.put(k, lane == k, &a.s, a.n, a.m, primary[lane].dir);
-            }
-        }
+        hits8.fill(|k| at[k].as_ref().map(|a| (&a.s, a.n, a.m, primary[k].dir)));
         let packets = self.world.traces_shadow_packets();
         for (j, light) in self.scene.lights.iter().enumerate() {
             let t = light::light8(&hits8, light);
