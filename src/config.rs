@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use crate::render::DEFAULT_TILE_PX;
 pub use crate::render::cost::DEFAULT_MAX_RAYS;
-use crate::scene::Limits;
+use crate::scene::{DEEPEST, Limits};
 
 /// Where the server listens unless told otherwise.
 pub const DEFAULT_ADDR: &str = "0.0.0.0:8080";
@@ -59,7 +59,7 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYTILE_MAX_SAMPLES", default_value_t = Limits::default().max_samples)]
     pub max_samples: u32,
 
-    /// Largest `max_depth` (reflection and refraction recursion).
+    /// Largest `max_depth` (reflection and refraction recursion), at most 100.
     #[arg(long, env = "RAYTILE_MAX_DEPTH", default_value_t = Limits::default().max_depth)]
     pub max_depth: u32,
 
@@ -321,6 +321,13 @@ impl ServeArgs {
 
     /// Checks what one flag alone cannot: that `--memory-bytes` holds the largest body.
     pub fn check(&self) -> Result<(), String> {
+        if self.max_depth > DEEPEST {
+            return Err(format!(
+                "--max-depth {} is more than {DEEPEST}, the deepest recursion the renderer \
+                 traces (each bounce takes room on a trace thread's stack)",
+                self.max_depth
+            ));
+        }
         let min = self.min_memory_bytes();
         if self.memory_bytes < min {
             return Err(format!(
@@ -431,6 +438,20 @@ mod tests {
         ] {
             assert!(parse_bytes(bad).is_err(), "{bad}");
         }
+    }
+
+    /// A server set to admit scenes deeper than the renderer traces would have them
+    /// refused one by one; it is refused at start instead, with the reason.
+    #[test]
+    fn a_max_depth_beyond_the_deepest_is_refused_at_start() {
+        let mut c = ServeArgs {
+            max_depth: DEEPEST,
+            ..ServeArgs::default()
+        };
+        assert_eq!(c.check(), Ok(()));
+        c.max_depth = DEEPEST + 1;
+        let e = c.check().expect_err("a depth beyond the deepest");
+        assert!(e.starts_with("--max-depth 101 is more than 100"), "{e}");
     }
 
     #[test]

@@ -17,7 +17,7 @@ use glam::DVec3;
 
 use crate::geometry::{Shape, Transform, World};
 pub use document::SceneDoc;
-pub use limits::Limits;
+pub use limits::{DEEPEST, Limits};
 pub use problem::{Problem, SceneError};
 pub use validate::{parse, parse_value};
 

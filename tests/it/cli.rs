@@ -127,3 +127,56 @@ fn writing_over_an_existing_file_leaves_the_bytes_of_a_new_one() {
         }
     }
 }
+
+/// Between two facing mirrors every ray recurses to `max_depth`, a level of the tracer's
+/// stack each bounce. At the deepest `max_depth` the renderer takes, `render`, `hits`
+/// and `trace` finish (an overflow would abort the process); one deeper is refused as
+/// an invalid scene, with its JSON pointer, though the command line sets no limits.
+#[test]
+fn facing_mirrors_at_the_deepest_max_depth_finish_and_one_deeper_is_refused() {
+    use raytile::scene::DEEPEST;
+    let dir = tempfile::tempdir().unwrap();
+    let deepest = scene_file(&dir, "deepest.json", &facing_mirrors(DEEPEST));
+    let deepest = deepest.to_str().unwrap();
+    let png = dir.path().join("deepest.png");
+    let npy = dir.path().join("deepest.npy");
+    for args in [
+        vec!["render", deepest, "-o", png.to_str().unwrap()],
+        vec!["hits", deepest, "-o", npy.to_str().unwrap()],
+        vec!["trace", deepest, "--pixel", "1,1", "--format", "json"],
+    ] {
+        let out = run(&args);
+        assert!(
+            out.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let (w, h, _) = decode_png(&std::fs::read(&png).unwrap());
+    assert_eq!((w, h), (8, 8));
+    // The explanation follows the pixel's ray down the bounces.
+    let out = run(&["trace", deepest, "--pixel", "1,1"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("reflected ray, depth 40:"), "{text}");
+
+    let deeper = scene_file(&dir, "deeper.json", &facing_mirrors(DEEPEST + 1));
+    let (png, npy) = (dir.path().join("deeper.png"), dir.path().join("deeper.npy"));
+    for (command, more) in [
+        ("render", ["-o", png.to_str().unwrap()]),
+        ("hits", ["-o", npy.to_str().unwrap()]),
+        ("trace", ["--pixel", "1,1"]),
+    ] {
+        let mut args = vec![command, deeper.to_str().unwrap()];
+        args.extend(more);
+        let out = run(&args);
+        assert!(!out.status.success(), "{command}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains(&format!(
+                "/max_depth: {} is more than the limit of {DEEPEST}",
+                DEEPEST + 1
+            )),
+            "{command}: {err}"
+        );
+    }
+}

@@ -1355,3 +1355,36 @@ fn under_a_low_descriptor_limit_idle_sockets_do_not_delay_healthz() {
     assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
     assert!(took < Duration::from_secs(2), "/healthz took {took:?}");
 }
+
+/// A server set to the deepest `max_depth` explains and renders a pixel between two
+/// facing mirrors, each bounce a level of recursion on one of its trace threads, and
+/// answers the next request (an overflow there would abort the whole process).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn facing_mirrors_at_the_deepest_max_depth_are_traced_by_the_server() {
+    use raytile::scene::DEEPEST;
+    let app = TestApp::with(ServeArgs {
+        max_depth: DEEPEST,
+        ..config()
+    })
+    .await;
+    let scene = crate::support::facing_mirrors(DEEPEST);
+    let res = app
+        .post_scene("/v1/trace?u=1&v=1&format=text", &scene)
+        .await;
+    assert_eq!(res.status(), 200);
+    assert!(
+        res.text()
+            .await
+            .unwrap()
+            .contains("reflected ray, depth 40:")
+    );
+    let res = app.post_scene("/v1/render", &scene).await;
+    assert_eq!(res.status(), 200);
+    let (w, h, _) = decode_png(&res.bytes().await.unwrap());
+    assert_eq!((w, h), (8, 8));
+    let res = app
+        .post_scene("/v1/validate", &crate::support::facing_mirrors(DEEPEST + 1))
+        .await;
+    assert_eq!(res.status(), 422);
+    assert_eq!(app.get("/healthz").await.status(), 200);
+}

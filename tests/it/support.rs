@@ -82,3 +82,22 @@ pub fn stdout_json(out: &Output) -> serde_json::Value {
         )
     })
 }
+
+/// An 8 × 8 scene between two facing mirrors, the floor `y = 0` and the ceiling `y = 1`,
+/// lit by one light: every pixel's ray but the centre's bounces between them until
+/// `max_depth`, each bounce a level of the tracer's recursion.
+pub fn facing_mirrors(max_depth: u32) -> serde_json::Value {
+    let mirror = serde_json::json!({"diffuse": [0.1, 0.1, 0.1], "mirror": [0.9, 0.9, 0.9]});
+    serde_json::json!({
+        "version": 1,
+        "image": {"width": 8, "height": 8},
+        "camera": {"focal_length": 1.5, "transform": [{"translate": [0, 0.5, 0]}]},
+        "max_depth": max_depth,
+        "objects": [
+            {"name": "floor", "shape": "plane", "material": mirror},
+            {"name": "ceiling", "shape": "plane", "material": mirror, "transform": [
+                {"rotate": {"axis": "x", "degrees": 180}}, {"translate": [0, 1, 0]}]}
+        ],
+        "lights": [{"type": "point", "position": [0, 0.5, 3], "colour": [1, 1, 1]}]
+    })
+}

@@ -25,7 +25,7 @@ use serde_json::Value;
 
 use super::document::*;
 use super::problem::{Pointer, Problem, SceneError};
-use super::{Limits, Scene};
+use super::{DEEPEST, Limits, Scene};
 use crate::json::strip_position;
 pub(crate) use normalise::normalise;
 use read::{Failed, read_document};
@@ -144,10 +144,11 @@ fn check(doc: SceneDoc, failed: &Failed, limits: &Limits, p: &mut Problems) -> O
     let background = colour(doc.background, [0.0; 3], &root.key("background"), p);
     let ambient = colour(doc.ambient, [0.0; 3], &root.key("ambient"), p);
     let max_depth = doc.max_depth.unwrap_or(5);
-    if max_depth > limits.max_depth {
+    let deepest = limits.max_depth.min(DEEPEST);
+    if max_depth > deepest {
         p.add(
             &root.key("max_depth"),
-            format!("{max_depth} is more than the limit of {}", limits.max_depth),
+            format!("{max_depth} is more than the limit of {deepest}"),
         );
     }
     let mut materials =
@@ -320,6 +321,29 @@ mod tests {
             one("/max_depth", "11 is more than the limit of 10")
         );
         assert_eq!(problems(&v, &Limits::NONE), []);
+    }
+
+    /// No caller's limits let a scene recurse deeper than the renderer's stack allows.
+    #[test]
+    fn max_depth_beyond_the_deepest_the_renderer_traces() {
+        let mut v = good();
+        v["max_depth"] = json!(DEEPEST);
+        let unbounded = Limits {
+            max_depth: u32::MAX,
+            ..Limits::NONE
+        };
+        assert_eq!(problems(&v, &Limits::NONE), []);
+        assert_eq!(problems(&v, &unbounded), []);
+        v["max_depth"] = json!(DEEPEST + 1);
+        for limits in [Limits::NONE, unbounded] {
+            assert_eq!(
+                problems(&v, &limits),
+                one(
+                    "/max_depth",
+                    &format!("{} is more than the limit of {DEEPEST}", DEEPEST + 1)
+                )
+            );
+        }
     }
 
     #[test]
