@@ -319,7 +319,9 @@ impl ServeArgs {
             .saturating_add(MIN_MEMORY_HEADROOM_BYTES)
     }
 
-    /// Checks what one flag alone cannot: that `--memory-bytes` holds the largest body.
+    /// Checks what parsing each flag cannot: that `--memory-bytes` holds the largest
+    /// body, and that `--max-depth` is within what the renderer traces
+    /// ([`DEEPEST`](crate::scene::DEEPEST)).
     pub fn check(&self) -> Result<(), String> {
         if self.max_depth > DEEPEST {
             return Err(format!(
@@ -451,7 +453,8 @@ mod tests {
         assert_eq!(c.check(), Ok(()));
         c.max_depth = DEEPEST + 1;
         let e = c.check().expect_err("a depth beyond the deepest");
-        assert!(e.starts_with("--max-depth 101 is more than 100"), "{e}");
+        let want = format!("--max-depth {} is more than {DEEPEST}", DEEPEST + 1);
+        assert!(e.starts_with(&want), "{e}");
     }
 
     #[test]
