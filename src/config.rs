@@ -321,7 +321,7 @@ impl ServeArgs {
 
     /// Checks what parsing each flag cannot: that `--memory-bytes` holds the largest
     /// body, and that `--max-depth` is within what the renderer traces
-    /// ([`DEEPEST`](crate::scene::DEEPEST)).
+    /// ([`DEEPEST`]).
     pub fn check(&self) -> Result<(), String> {
         if self.max_depth > DEEPEST {
             return Err(format!(
