@@ -3,8 +3,7 @@
 use glam::{DAffine3, DVec3};
 
 use super::ray::Ray;
-use std::ops::{Add, Div, Mul, Sub};
-use wide::{f32x4, f32x8, f64x2, f64x4};
+use wide::{f32x4, f32x8, f64x2};
 
 // The one module with `unsafe`: calling code compiled for AVX2 or AVX-512, once the
 // processor is known to have it.
@@ -263,97 +262,6 @@ impl BoxPair32 {
             self.max[1][c],
             self.max[2][c],
         ]
-    }
-}
-
-/// Arithmetic in four f64 lanes, each lane by the same operations as one number alone
-/// (no fused steps), so the same bits: [`Portable`] everywhere, and one AVX register
-/// ([`x86::Avx2`]) where the processor has AVX2, half the instructions. Comparisons
-/// give the bit set of the lanes where they hold.
-pub trait Lanes4: Copy {
-    /// Four lanes.
-    type V: Copy
-        + Add<Output = Self::V>
-        + Sub<Output = Self::V>
-        + Mul<Output = Self::V>
-        + Div<Output = Self::V>;
-    /// `x` in every lane.
-    fn splat(self, x: f64) -> Self::V;
-    /// The lanes of `x`.
-    fn load(self, x: &[f64; 4]) -> Self::V;
-    /// The lanes as an array.
-    fn store(self, v: Self::V) -> [f64; 4];
-    /// Where `a ≥ b` (not where either is NaN).
-    fn ge(self, a: Self::V, b: Self::V) -> u32;
-    /// Where `a > b` (not where either is NaN).
-    fn gt(self, a: Self::V, b: Self::V) -> u32;
-    /// Where `a ≤ b` (not where either is NaN).
-    fn le(self, a: Self::V, b: Self::V) -> u32;
-    /// Where `a ≠ b` (and where either is NaN).
-    fn ne(self, a: Self::V, b: Self::V) -> u32;
-    /// The square root of each lane.
-    fn sqrt(self, a: Self::V) -> Self::V;
-    /// Each lane's magnitude (its sign bit cleared, as `f64::abs`).
-    fn abs(self, a: Self::V) -> Self::V;
-    /// `x` where `a > b`, else `y` (where either is NaN too), lane by lane.
-    fn pick_gt(self, a: Self::V, b: Self::V, x: Self::V, y: Self::V) -> Self::V;
-}
-
-/// [`Lanes4`] in two SSE2 registers (the `wide` crate's `f64x4`), on any processor.
-#[derive(Debug, Clone, Copy)]
-pub struct Portable;
-
-impl Lanes4 for Portable {
-    type V = f64x4;
-
-    #[inline(always)]
-    fn splat(self, x: f64) -> f64x4 {
-        f64x4::splat(x)
-    }
-
-    #[inline(always)]
-    fn load(self, x: &[f64; 4]) -> f64x4 {
-        f64x4::new(*x)
-    }
-
-    #[inline(always)]
-    fn store(self, v: f64x4) -> [f64; 4] {
-        v.to_array()
-    }
-
-    #[inline(always)]
-    fn ge(self, a: f64x4, b: f64x4) -> u32 {
-        a.simd_ge(b).to_bitmask()
-    }
-
-    #[inline(always)]
-    fn gt(self, a: f64x4, b: f64x4) -> u32 {
-        a.simd_gt(b).to_bitmask()
-    }
-
-    #[inline(always)]
-    fn le(self, a: f64x4, b: f64x4) -> u32 {
-        a.simd_le(b).to_bitmask()
-    }
-
-    #[inline(always)]
-    fn ne(self, a: f64x4, b: f64x4) -> u32 {
-        a.simd_ne(b).to_bitmask()
-    }
-
-    #[inline(always)]
-    fn sqrt(self, a: f64x4) -> f64x4 {
-        a.sqrt()
-    }
-
-    #[inline(always)]
-    fn abs(self, a: f64x4) -> f64x4 {
-        a.abs()
-    }
-
-    #[inline(always)]
-    fn pick_gt(self, a: f64x4, b: f64x4, x: f64x4, y: f64x4) -> f64x4 {
-        a.simd_gt(b).select(x, y)
     }
 }
 

@@ -549,16 +549,26 @@ impl Bvh {
         #[cfg(target_arch = "x86_64")]
         {
             if let Some(avx512) = Avx512::detect() {
-                return avx512.run(|| {
-                    let sixteen = avx512.widen(rays);
-                    self.traverse8::<FAR_FIRST, _, _>(rays, &sixteen, t_min, t_max, active, leaf)
-                });
+                // Always inlined into `run`'s function, so that the whole traversal (its
+                // leaves' tests too) is compiled for these instruction sets.
+                return avx512.run(
+                    #[inline(always)]
+                    || {
+                        let sixteen = avx512.widen(rays);
+                        self.traverse8::<FAR_FIRST, _, _>(
+                            rays, &sixteen, t_min, t_max, active, leaf,
+                        )
+                    },
+                );
             }
             if let Some(avx2) = Avx2::detect() {
-                return avx2.run(|| {
-                    let eight = [avx2.widen(&rays[0]), avx2.widen(&rays[1])];
-                    self.traverse8::<FAR_FIRST, _, _>(rays, &eight, t_min, t_max, active, leaf)
-                });
+                return avx2.run(
+                    #[inline(always)]
+                    || {
+                        let eight = [avx2.widen(&rays[0]), avx2.widen(&rays[1])];
+                        self.traverse8::<FAR_FIRST, _, _>(rays, &eight, t_min, t_max, active, leaf)
+                    },
+                );
             }
         }
         self.traverse8::<FAR_FIRST, _, _>(rays, rays, t_min, t_max, active, leaf)

@@ -2,6 +2,7 @@
 //! directions, affine transforms with their inverses, the canonical shapes, bounding
 //! boxes, the BVH, and the world that finds a ray's first hit.
 
+pub mod arith;
 pub mod bounds;
 pub mod bvh;
 pub mod hit;

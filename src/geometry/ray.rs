@@ -5,6 +5,8 @@
 
 use glam::{DAffine3, DVec3};
 
+use super::arith::{Arith, One};
+
 /// A ray: an origin (a point) and a direction (not normalised).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ray {
@@ -26,12 +28,13 @@ impl Ray {
         self.origin + lambda * self.dir
     }
 
-    /// The ray carried by an affine map: the origin as a point, the direction as a vector.
+    /// The ray carried by an affine map: the origin as a point, the direction as a vector
+    /// (by the arithmetic a packet's rays are carried by too, lane by lane).
     #[inline]
     pub fn transformed(&self, m: &DAffine3) -> Ray {
         Ray {
-            origin: m.transform_point3(self.origin),
-            dir: m.transform_vector3(self.dir),
+            origin: DVec3::from_array(One.carry_point(m, self.origin.to_array())),
+            dir: DVec3::from_array(One.carry_vector(&m.matrix3, self.dir.to_array())),
         }
     }
 }

@@ -10,7 +10,8 @@ use std::arch::x86_64::*;
 
 use wide::f32x4;
 
-use super::{BoxPair32, GROW, Lanes4, PairTest, PairTest8, SHRINK, SlabRay4};
+use super::{BoxPair32, GROW, PairTest, PairTest8, SHRINK, SlabRay4};
+use crate::geometry::arith::Lanes4;
 use wide::f32x8;
 
 /// A proof type that the processor has the instruction sets `$feature`, its `detect`,

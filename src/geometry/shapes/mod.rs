@@ -41,6 +41,7 @@ use glam::DVec3;
 pub use mesh::Mesh;
 
 use super::{
+    arith::{Arith, One},
     bounds::{Aabb, lanes_where, per_lane},
     hit::{Face, Probe},
     ray::Ray,
@@ -431,15 +432,17 @@ pub(crate) fn solve_quadratic<P: super::hit::Probe>(
     c: f64,
     probe: &mut P,
 ) -> [Option<f64>; 2] {
-    let disc = b * b - 4.0 * a * c;
+    let disc = discriminant(One, a, b, c);
     let roots = if disc < 0.0 || a == 0.0 {
         [None, None]
-    } else if disc == 0.0 {
-        [Some(-b / (2.0 * a)), None]
     } else {
-        let s = disc.sqrt();
-        let (r0, r1) = ((-b - s) / (2.0 * a), (-b + s) / (2.0 * a));
-        [Some(r0.min(r1)), Some(r0.max(r1))]
+        let (r0, r1) = roots(One, a, b, disc);
+        if disc == 0.0 {
+            // `−b − √0` is `−b`, bit for bit: the one root `−b / 2a`.
+            [Some(r0), None]
+        } else {
+            [Some(r0.min(r1)), Some(r0.max(r1))]
+        }
     };
     if probe.active() {
         probe.quadratic(&super::hit::QuadraticTest {
@@ -452,6 +455,23 @@ pub(crate) fn solve_quadratic<P: super::hit::Probe>(
         });
     }
     roots
+}
+
+/// The discriminant `b² − 4ac`, in one number or in lanes.
+#[inline(always)]
+pub(crate) fn discriminant<A: Arith>(n: A, a: A::N, b: A::N, c: A::N) -> A::N {
+    n.sub(n.mul(b, b), n.mul(n.mul(n.splat(4.0), a), c))
+}
+
+/// The roots `(−b − √disc) / 2a` and `(−b + √disc) / 2a` for a discriminant `disc ≥ 0`,
+/// in one number or in lanes: in that order the nearer and the farther where `a > 0`.
+#[inline(always)]
+pub(crate) fn roots<A: Arith>(n: A, a: A::N, b: A::N, disc: A::N) -> (A::N, A::N) {
+    let (s, minus_b, two_a) = (n.sqrt(disc), n.neg(b), n.mul(n.splat(2.0), a));
+    (
+        n.div(n.sub(minus_b, s), two_a),
+        n.div(n.add(minus_b, s), two_a),
+    )
 }
 
 #[cfg(test)]

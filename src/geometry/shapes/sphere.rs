@@ -2,7 +2,8 @@
 
 use glam::DVec3;
 
-use super::{CanonicalShape, roots_ahead};
+use super::{CanonicalShape, discriminant, roots, roots_ahead};
+use crate::geometry::arith::{Arith, Eight, Lanes4, One};
 use crate::geometry::{bounds::Aabb, hit::Probe, ray::Ray, transform::Transform};
 
 /// The unit sphere as a [`CanonicalShape`]: one part, closed.
@@ -50,19 +51,60 @@ impl CanonicalShape for Sphere {
 /// `a = d·d`, `b = 2 p₀·d`, `c = p₀·p₀ − 1`.
 #[inline]
 pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> Option<f64> {
-    let (a, b, c) = coefficients(ray);
+    let (a, b, c) = coefficients(One, ray.origin.to_array(), ray.dir.to_array());
     roots_ahead(Sphere::NAME, a, b, c, t_min, probe)
         .into_iter()
         .flatten()
         .find(|&t| t > t_min && t < t_max)
 }
 
-/// The quadratic's `a = d·d`, `b = 2 p₀·d`, `c = p₀·p₀ − 1` for `ray`.
+/// [`intersect`] for eight rays at once, in lanes (`origin` and `dir` in object
+/// space, each lane a ray), nothing recorded: the bit set of the lanes with a root in
+/// `(t_min, t_max[lane])`, and for those the first. Each lane's numbers are the lone
+/// ray's, bit for bit, and so is its answer: the discriminant's test refuses the same
+/// rays, and since `a = d·d > 0`, `(−b − √disc) / 2a ≤ (−b + √disc) / 2a` (the
+/// rounding is monotone), so the first root in the interval is the nearer where it
+/// lies there, else the farther (a NaN root lies nowhere, and where one of the two
+/// is NaN the lone ray's `min` and `max` both give the other).
 #[inline(always)]
-fn coefficients(ray: &Ray) -> (f64, f64, f64) {
-    let a = ray.dir.dot(ray.dir);
-    let b = 2.0 * ray.origin.dot(ray.dir);
-    let c = ray.origin.dot(ray.origin) - 1.0;
+pub(crate) fn intersect8<L: Lanes4>(
+    n: Eight<L>,
+    origin: [[L::V; 2]; 3],
+    dir: [[L::V; 2]; 3],
+    t_min: f64,
+    t_max: &[f64; 8],
+) -> (u32, [f64; 8]) {
+    let (a, b, c) = coefficients(n, origin, dir);
+    let disc = discriminant(n, a, b, c);
+    let zero = n.splat(0.0);
+    let real = n.ge(disc, zero) & n.ne(a, zero);
+    if real == 0 {
+        // Most of a packet's tests: the rays pass the sphere by.
+        return (0, [0.0; 8]);
+    }
+    let (near, far) = roots(n, a, b, disc);
+    let (low, high) = (n.splat(t_min), n.load(t_max));
+    let near_within = n.gt(near, low) & n.gt(high, near);
+    let far_within = n.gt(far, low) & n.gt(high, far);
+    let (near, far) = (n.store(near), n.store(far));
+    let mut first = [0.0; 8];
+    for k in 0..8 {
+        first[k] = if near_within >> k & 1 == 1 {
+            near[k]
+        } else {
+            far[k]
+        };
+    }
+    (real & (near_within | far_within), first)
+}
+
+/// The quadratic's `a = d·d`, `b = 2 p₀·d`, `c = p₀·p₀ − 1` for a ray from `origin`
+/// along `dir`, in one number or in lanes.
+#[inline(always)]
+fn coefficients<A: Arith>(n: A, origin: [A::N; 3], dir: [A::N; 3]) -> (A::N, A::N, A::N) {
+    let a = n.dot(dir, dir);
+    let b = n.mul(n.splat(2.0), n.dot(origin, dir));
+    let c = n.sub(n.dot(origin, origin), n.splat(1.0));
     (a, b, c)
 }
 
@@ -145,18 +187,91 @@ mod tests {
         }
     }
 
+    /// A ray of any of the kinds above, a tangent one (the lecture's pixel), or one
+    /// without a direction.
+    fn any_ray() -> impl Strategy<Value = Ray> {
+        let anywhere = prop::array::uniform3(-3.0f64..3.0).prop_map(DVec3::from_array);
+        (
+            vector(),
+            vector(),
+            off_surface(),
+            anywhere,
+            ray_scale(),
+            0..7usize,
+        )
+            .prop_map(|(u, d, off, anywhere, scale, kind)| {
+                let n = u.try_normalize().unwrap_or(DVec3::X);
+                match kind {
+                    0 => Ray::new(n * (1.0 + off), d),
+                    1 => Ray::new(n * (1.0 + off), n + d * 0.5),
+                    2 => Ray::new(anywhere, d),
+                    3 => Ray::new(anywhere, d * scale),
+                    4 => Ray::new(n * (1.0 + off), d * scale),
+                    5 => Ray::new(DVec3::new(-1.0, 0.0, -2.0) * scale, DVec3::Z * scale),
+                    _ => Ray::new(anywhere, DVec3::ZERO),
+                }
+            })
+    }
+
+    /// [`intersect8`] in the lanes of `n` against [`intersect`] of each ray alone.
+    fn lanes_agree<L: Lanes4>(
+        n: Eight<L>,
+        rays: &[Ray; 8],
+        t_min: f64,
+        t_max: &[f64; 8],
+    ) -> Result<(), TestCaseError> {
+        let lanes = |v: &dyn Fn(&Ray) -> DVec3| {
+            let mut c = [[0.0; 8]; 3];
+            for (k, r) in rays.iter().enumerate() {
+                (c[0][k], c[1][k], c[2][k]) = v(r).into();
+            }
+            n.load3(&c)
+        };
+        let (hit, first) = intersect8(n, lanes(&|r| r.origin), lanes(&|r| r.dir), t_min, t_max);
+        for (k, r) in rays.iter().enumerate() {
+            let alone = intersect(r, t_min, t_max[k], &mut ());
+            let lane = (hit >> k & 1 == 1).then_some(first[k]);
+            prop_assert_eq!(
+                lane.map(f64::to_bits),
+                alone.map(f64::to_bits),
+                "lane {} {:?}",
+                k,
+                r
+            );
+        }
+        Ok(())
+    }
+
+    proptest! {
+        /// Eight rays of every kind at once, each in its lane to its own `t_max`: each
+        /// lane finds what its ray finds alone, bit for bit, in SSE2 lanes and, where
+        /// the processor has them, in AVX2 lanes.
+        #[test]
+        fn eight_rays_in_lanes_find_what_each_finds_alone(
+            rays in prop::array::uniform8(any_ray()),
+            t_min in any_t_min(),
+            t_max in prop::array::uniform8(any_t_max()),
+        ) {
+            lanes_agree(Eight(crate::geometry::arith::Portable), &rays, t_min, &t_max)?;
+            #[cfg(target_arch = "x86_64")]
+            if let Some(avx2) = crate::geometry::bounds::x86::Avx2::detect() {
+                avx2.run(|| lanes_agree(Eight(avx2), &rays, t_min, &t_max))?;
+            }
+        }
+    }
+
     /// The rays the shortcut is for take it: a shadow ray leaving a lit point, started
     /// off the surface as the shader starts it.
     #[test]
     fn a_shadow_ray_leaving_its_sphere_skips_the_roots() {
         let n = DVec3::new(0.3, 0.8, -0.2).normalize();
         let r = Ray::new(n * (1.0 + 1e-9), DVec3::new(5.0, 9.0, 1.0));
-        let (_, b, c) = coefficients(&r);
+        let (_, b, c) = coefficients(One, r.origin.to_array(), r.dir.to_array());
         assert!(leaves_from_outside(b, c));
         assert_eq!(intersect(&r, 1e-9, 1.0, &mut ()), None);
         // Toward the inside (a specular term's shadow ray can point there), it is hit.
         let inward = Ray::new(r.origin, -n);
-        let (_, b, c) = coefficients(&inward);
+        let (_, b, c) = coefficients(One, inward.origin.to_array(), inward.dir.to_array());
         assert!(!leaves_from_outside(b, c));
         assert!(intersect(&inward, 1e-9, 10.0, &mut ()).is_some());
     }

@@ -9,9 +9,9 @@ use glam::DVec3;
 use super::Tri;
 #[cfg(test)]
 use super::moller_trumbore;
+use crate::geometry::arith::{Lanes4, Portable};
 #[cfg(target_arch = "x86_64")]
 use crate::geometry::bounds::x86::Avx2;
-use crate::geometry::bounds::{Lanes4, Portable};
 use crate::geometry::ray::Ray;
 
 /// Triangles a group holds: the lanes of one pass.
