@@ -178,21 +178,24 @@ pub(crate) trait Arith: Copy {
             self.mul(a[2], b[2]),
         ]
     }
-    /// `m · v`, summed as glam's `DMat3::mul_vec3` sums it (so `DAffine3`'s
-    /// `transform_vector3` too): a direction carried into another space.
+    /// Coordinate `k` of `m · v`, `(m₀ₖ v₀ + m₁ₖ v₁) + m₂ₖ v₂` (column `i`, row `k`),
+    /// summed as glam's `DMat3::mul_vec3` sums it.
+    #[inline(always)]
+    fn carry_coordinate(self, m: &DMat3, k: usize, v: [Self::N; 3]) -> Self::N {
+        let xy = self.add(
+            self.mul(self.splat(m.x_axis[k]), v[0]),
+            self.mul(self.splat(m.y_axis[k]), v[1]),
+        );
+        self.add(xy, self.mul(self.splat(m.z_axis[k]), v[2]))
+    }
+    /// `m · v` (so `DAffine3`'s `transform_vector3` too): a direction carried into
+    /// another space.
     #[inline(always)]
     fn carry_vector(self, m: &DMat3, v: [Self::N; 3]) -> [Self::N; 3] {
-        /// One coordinate: `(x · v₀ + y · v₁) + z · v₂`.
-        #[inline(always)]
-        fn row<A: Arith>(a: A, x: f64, y: f64, z: f64, v: &[A::N; 3]) -> A::N {
-            let xy = a.add(a.mul(a.splat(x), v[0]), a.mul(a.splat(y), v[1]));
-            a.add(xy, a.mul(a.splat(z), v[2]))
-        }
-        let [x, y, z] = [m.x_axis, m.y_axis, m.z_axis];
         [
-            row(self, x.x, y.x, z.x, &v),
-            row(self, x.y, y.y, z.y, &v),
-            row(self, x.z, y.z, z.z, &v),
+            self.carry_coordinate(m, 0, v),
+            self.carry_coordinate(m, 1, v),
+            self.carry_coordinate(m, 2, v),
         ]
     }
     /// `m · p`, as glam's `DAffine3::transform_point3` computes it: the linear part's

@@ -68,35 +68,56 @@ impl Solid {
         t_max: &[f64; 8],
     ) -> (u32, [f64; 8]) {
         let m = &self.object_from_world;
-        let mut d = [[0.0; 8]; 3];
-        for (k, ray) in rays.iter().enumerate() {
-            (d[0][k], d[1][k], d[2][k]) = ray.dir.into();
-        }
-        let dir = n.carry_vector(&m.matrix3, n.load3(&d));
+        let dir = n.carry_vector(&m.matrix3, n.load3(&lanes3(rays, |r| r.dir)));
         let origin = if view {
             n.splat3(self.view_origin)
         } else {
-            let mut o = [[0.0; 8]; 3];
-            for (k, ray) in rays.iter().enumerate() {
-                (o[0][k], o[1][k], o[2][k]) = ray.origin.into();
-            }
-            n.carry_point(m, n.load3(&o))
+            n.carry_point(m, n.load3(&lanes3(rays, |r| r.origin)))
         };
         sphere::intersect8(n, origin, dir, t_min, t_max)
+    }
+
+    /// A plane's test ([`plane::lambdas_from_y`]) of a packet's rays, from the
+    /// heights and climbs [`Solid::object_y`] gives each, computed in lanes; `view` as
+    /// for [`Solid::sphere8`].
+    #[inline(always)]
+    fn plane8<L: Lanes4>(
+        &self,
+        n: Eight<L>,
+        rays: &[Ray; 8],
+        view: bool,
+        t_min: f64,
+        t_max: &[f64; 8],
+    ) -> (u32, [f64; 8]) {
+        let m = &self.object_from_world;
+        let dy = n.carry_coordinate(&m.matrix3, 1, n.load3(&lanes3(rays, |r| r.dir)));
+        let y0 = if view {
+            n.splat(self.view_origin.y)
+        } else {
+            let o = n.load3(&lanes3(rays, |r| r.origin));
+            n.add(
+                n.carry_coordinate(&m.matrix3, 1, o),
+                n.splat(m.translation.y),
+            )
+        };
+        let (hit, lambda) = plane::lambdas_from_y(n, y0, dy, t_min, n.load(t_max));
+        (hit, n.store(lambda))
     }
 
     /// The y components of [`Solid::object_ray`]'s origin and direction, computed
     /// alone in the same order (so bit for bit the same): all a plane's test reads.
     #[inline(always)]
     fn object_y(&self, ray: &Ray, from_view: bool) -> (f64, f64) {
-        let m = &self.object_from_world.matrix3;
-        let y = |v: DVec3| m.x_axis.y * v.x + m.y_axis.y * v.y + m.z_axis.y * v.z;
+        let m = &self.object_from_world;
         let origin = if from_view {
             self.view_origin.y
         } else {
-            y(ray.origin) + self.object_from_world.translation.y
+            One.carry_coordinate(&m.matrix3, 1, ray.origin.to_array()) + m.translation.y
         };
-        (origin, y(ray.dir))
+        (
+            origin,
+            One.carry_coordinate(&m.matrix3, 1, ray.dir.to_array()),
+        )
     }
 }
 
@@ -111,6 +132,43 @@ pub struct World {
     unbounded: Vec<u32>,
     /// A point many rays start from (the camera), carried into every object's space once.
     viewpoint: Option<DVec3>,
+}
+
+/// The vectors `v(ray)` of a packet's eight rays, coordinate by coordinate (each in
+/// lanes).
+#[inline(always)]
+fn lanes3(rays: &[Ray; 8], v: impl Fn(&Ray) -> DVec3) -> [[f64; 8]; 3] {
+    let mut c = [[0.0; 8]; 3];
+    for (k, ray) in rays.iter().enumerate() {
+        (c[0][k], c[1][k], c[2][k]) = v(ray).into();
+    }
+    c
+}
+
+/// `$body` with `$n` the widest lanes of [`Eight`] this processor has: AVX2 where it
+/// has them, else SSE2. The AVX2 lanes are single instructions only where the caller
+/// is compiled for AVX2 (inside [`with_avx2`] or the tree's traversal): a `run` of
+/// their own stayed a call (3 % more instructions in `spheres-1k`'s hit data).
+macro_rules! in_lanes {
+    ($n:ident => $body:expr) => {{
+        #[cfg(target_arch = "x86_64")]
+        let found = match Avx2::detect() {
+            Some(avx2) => {
+                let $n = Eight(avx2);
+                $body
+            }
+            None => {
+                let $n = Eight(Portable);
+                $body
+            }
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let found = {
+            let $n = Eight(Portable);
+            $body
+        };
+        found
+    }};
 }
 
 /// `f()`, inlined into code compiled for AVX2 where the processor has it.
@@ -344,12 +402,11 @@ impl World {
         }
         let mut best: [Option<Hit>; 8] = [None; 8];
         let mut limit = [t_max; 8];
-        for &i in &self.unbounded {
-            for lane in lanes_of(active) {
-                let (r, below) = (&rays[lane], limit[lane].next_up());
-                let found = self.intersect_unbounded(i, r, from_view[lane], t_min, below, &mut ());
-                limit[lane] = keep_first(&mut best[lane], i, found, limit[lane]);
-            }
+        if !self.unbounded.is_empty() {
+            with_avx2(
+                #[inline(always)]
+                || self.unbounded8(rays, from_view, t_min, active, &mut limit, &mut best),
+            );
         }
         if let Some(i) = lone {
             // Compiled for AVX2 where the processor has it, as the traversal's leaves
@@ -378,6 +435,42 @@ impl World {
         best
     }
 
+    /// The unbounded objects for the rays of `active` (of [`World::closest8`]), each
+    /// taken by the rule of `closest_probed`: a plane tests the eight in lanes
+    /// ([`Solid::plane8`]), anything else one ray at a time.
+    #[inline(always)]
+    fn unbounded8(
+        &self,
+        rays: &[Ray; 8],
+        from_view: [bool; 8],
+        t_min: f64,
+        active: u32,
+        limit: &mut [f64; 8],
+        best: &mut [Option<Hit>; 8],
+    ) {
+        let view = from_view == [true; 8];
+        for &i in &self.unbounded {
+            let s = &self.solids[i as usize];
+            if let Shape::Plane = s.shape {
+                let mut below = [0.0; 8];
+                for lane in lanes_of(active) {
+                    below[lane] = limit[lane].next_up();
+                }
+                let (hit, lambda) = in_lanes!(n => s.plane8(n, rays, view, t_min, &below));
+                for lane in lanes_of(active & hit) {
+                    let found = Some((lambda[lane], 0));
+                    limit[lane] = keep_first(&mut best[lane], i, found, limit[lane]);
+                }
+                continue;
+            }
+            for lane in lanes_of(active) {
+                let (r, below) = (&rays[lane], limit[lane].next_up());
+                let found = self.intersect_unbounded(i, r, from_view[lane], t_min, below, &mut ());
+                limit[lane] = keep_first(&mut best[lane], i, found, limit[lane]);
+            }
+        }
+    }
+
     /// Object `i` for the rays of `active` (of [`World::closest8`]), each taken by the
     /// rule of `closest_probed`, so the same hits. `next_up` lets an equal λ through.
     /// A sphere takes the eight rays in lanes ([`Solid::sphere8`]), other shapes one
@@ -401,16 +494,7 @@ impl World {
                 below[lane] = limit[lane].next_up();
             }
             let view = from_view == [true; 8];
-            #[cfg(target_arch = "x86_64")]
-            let (hit, lambda) = match Avx2::detect() {
-                // Inlined into code compiled for AVX2 (the traversal's, or the lone
-                // object's `run` in `closest8`): a `run` of its own here stayed a call
-                // (3 % more instructions in `spheres-1k`'s hit data).
-                Some(avx2) => s.sphere8(Eight(avx2), rays, view, t_min, &below),
-                None => s.sphere8(Eight(Portable), rays, view, t_min, &below),
-            };
-            #[cfg(not(target_arch = "x86_64"))]
-            let (hit, lambda) = s.sphere8(Eight(Portable), rays, view, t_min, &below);
+            let (hit, lambda) = in_lanes!(n => s.sphere8(n, rays, view, t_min, &below));
             for lane in lanes_of(active & hit) {
                 let found = Some((lambda[lane], 0));
                 limit[lane] = keep_first(&mut best[lane], i, found, limit[lane]);

@@ -3,6 +3,7 @@
 use glam::DVec3;
 
 use super::CanonicalShape;
+use crate::geometry::arith::{Arith, One};
 use crate::geometry::{
     bounds::Aabb,
     hit::{FaceTest, Probe},
@@ -60,7 +61,7 @@ pub(crate) fn intersect_y0<P: Probe>(
         }
         return None;
     }
-    let t = crossing(height, ray.origin.y, ray.dir.y);
+    let t = crossing(One, height, ray.origin.y, ray.dir.y);
     let x = ray.origin.x + t * ray.dir.x;
     let z = ray.origin.z + t * ray.dir.z;
     let within = radius2 == f64::INFINITY || x * x + z * z <= radius2;
@@ -75,10 +76,11 @@ pub(crate) fn intersect_y0<P: Probe>(
     (within && t > t_min && t < t_max).then_some(t)
 }
 
-/// Where a ray at height `y0` climbing `dy` per unit `λ` crosses `y = height`.
+/// Where a ray at height `y0` climbing `dy` per unit `λ` crosses `y = height`, in one
+/// number or in lanes.
 #[inline(always)]
-fn crossing(height: f64, y0: f64, dy: f64) -> f64 {
-    (height - y0) / dy
+fn crossing<A: Arith>(n: A, height: A::N, y0: A::N, dy: A::N) -> A::N {
+    n.div(n.sub(height, y0), dy)
 }
 
 /// The plane's hit `λ` in `(t_min, t_max)` from the ray's `y₀` and `Δy` alone: what
@@ -86,11 +88,24 @@ fn crossing(height: f64, y0: f64, dy: f64) -> f64 {
 /// components (a world's planes, tested by every ray).
 #[inline(always)]
 pub fn lambda_from_y(y0: f64, dy: f64, t_min: f64, t_max: f64) -> Option<f64> {
-    if dy.abs() < PARALLEL_EPSILON {
-        return None;
-    }
-    let t = crossing(0.0, y0, dy);
-    (t > t_min && t < t_max).then_some(t)
+    let (hit, t) = lambdas_from_y(One, y0, dy, t_min, t_max);
+    (hit == 1).then_some(t)
+}
+
+/// [`lambda_from_y`] in one number or in lanes, each lane that number's, bit for bit:
+/// the lanes with a hit, and each lane's crossing (read only where it hits).
+#[inline(always)]
+pub(crate) fn lambdas_from_y<A: Arith>(
+    n: A,
+    y0: A::N,
+    dy: A::N,
+    t_min: f64,
+    t_max: A::N,
+) -> (u32, A::N) {
+    let parallel = n.gt(n.splat(PARALLEL_EPSILON), n.abs(dy));
+    let t = crossing(n, n.splat(0.0), y0, dy);
+    let within = n.gt(t, n.splat(t_min)) & n.gt(t_max, t);
+    (within & !parallel, t)
 }
 
 /// The plane's hit `λ` in `(t_min, t_max)`.
@@ -129,6 +144,66 @@ mod tests {
             let whole = intersect(&r, 1e-9, t_max, &mut ());
             let alone = lambda_from_y(y0, dy, 1e-9, t_max);
             prop_assert_eq!(whole.map(f64::to_bits), alone.map(f64::to_bits));
+        }
+    }
+
+    /// A height or a climb of any sign and scale, zeros, the parallel threshold and
+    /// the extremes included.
+    fn any_y() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            Just(0.0),
+            Just(-0.0),
+            Just(PARALLEL_EPSILON),
+            Just(-PARALLEL_EPSILON),
+            Just(1e-13),
+            Just(1e-300),
+            Just(1e300),
+            Just(f64::INFINITY),
+            -5.0f64..5.0,
+        ]
+    }
+
+    /// [`lambdas_from_y`] in the lanes of `n` against [`lambda_from_y`] of each lane.
+    fn lanes_agree<L: crate::geometry::arith::Lanes4>(
+        n: crate::geometry::arith::Eight<L>,
+        y0: &[f64; 8],
+        dy: &[f64; 8],
+        t_min: f64,
+        t_max: &[f64; 8],
+    ) -> Result<(), TestCaseError> {
+        let (hit, t) = lambdas_from_y(n, n.load(y0), n.load(dy), t_min, n.load(t_max));
+        let t = n.store(t);
+        for k in 0..8 {
+            let lane = (hit >> k & 1 == 1).then_some(t[k]);
+            let alone = lambda_from_y(y0[k], dy[k], t_min, t_max[k]);
+            prop_assert_eq!(
+                lane.map(f64::to_bits),
+                alone.map(f64::to_bits),
+                "lane {}",
+                k
+            );
+        }
+        Ok(())
+    }
+
+    proptest! {
+        /// Eight rays' heights and climbs at once, each lane to its own `t_max`: each
+        /// finds what it finds alone, bit for bit, in SSE2 lanes and, where the
+        /// processor has them, in AVX2 lanes.
+        #[test]
+        fn eight_heights_in_lanes_find_what_each_finds_alone(
+            y0 in prop::array::uniform8(any_y()),
+            dy in prop::array::uniform8(any_y()),
+            t_min in prop_oneof![Just(1e-9), Just(0.0), Just(-1.0), 0.0f64..2.0],
+            t_max in prop::array::uniform8(prop_oneof![Just(f64::INFINITY), 0.0f64..8.0]),
+        ) {
+            let n = crate::geometry::arith::Eight(crate::geometry::arith::Portable);
+            lanes_agree(n, &y0, &dy, t_min, &t_max)?;
+            #[cfg(target_arch = "x86_64")]
+            if let Some(avx2) = crate::geometry::bounds::x86::Avx2::detect() {
+                let n = crate::geometry::arith::Eight(avx2);
+                avx2.run(|| lanes_agree(n, &y0, &dy, t_min, &t_max))?;
+            }
         }
     }
 
