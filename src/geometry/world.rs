@@ -55,9 +55,31 @@ impl Solid {
         }
     }
 
-    /// A sphere's test ([`sphere::intersect8`]) of a packet's rays, carried into
-    /// object space in lanes as [`Solid::object_ray`] carries each (so the same bits);
-    /// `view` says that every ray the answer is read for starts at the viewpoint.
+    /// A packet's rays carried into object space in lanes (origins, then directions),
+    /// as [`Solid::object_ray`] carries each (so the same bits); `view` says that every
+    /// ray the answer is read for starts at the viewpoint. A test that reads only some
+    /// coordinates (a plane's height and climb) leaves the others to be dropped by the
+    /// compiler, since all of it is inlined.
+    #[allow(clippy::type_complexity)]
+    #[inline(always)]
+    fn object_rays8<L: Lanes4>(
+        &self,
+        n: Eight<L>,
+        rays: &[Ray; 8],
+        view: bool,
+    ) -> ([[L::V; 2]; 3], [[L::V; 2]; 3]) {
+        let m = &self.object_from_world;
+        let dir = n.carry_vector(&m.matrix3, n.load3(&lanes3(rays, |r| r.dir)));
+        let origin = if view {
+            n.splat3(self.view_origin)
+        } else {
+            n.carry_point(m, n.load3(&lanes3(rays, |r| r.origin)))
+        };
+        (origin, dir)
+    }
+
+    /// A sphere's test ([`sphere::intersect8`]) of a packet's rays (`view` as for
+    /// [`Solid::object_rays8`]).
     #[inline(always)]
     fn sphere8<L: Lanes4>(
         &self,
@@ -67,19 +89,12 @@ impl Solid {
         t_min: f64,
         t_max: &[f64; 8],
     ) -> (u32, [f64; 8]) {
-        let m = &self.object_from_world;
-        let dir = n.carry_vector(&m.matrix3, n.load3(&lanes3(rays, |r| r.dir)));
-        let origin = if view {
-            n.splat3(self.view_origin)
-        } else {
-            n.carry_point(m, n.load3(&lanes3(rays, |r| r.origin)))
-        };
+        let (origin, dir) = self.object_rays8(n, rays, view);
         sphere::intersect8(n, origin, dir, t_min, t_max)
     }
 
-    /// A plane's test ([`plane::lambdas_from_y`]) of a packet's rays, from the
-    /// heights and climbs [`Solid::object_y`] gives each, computed in lanes; `view` as
-    /// for [`Solid::sphere8`].
+    /// A plane's test ([`plane::lambdas_from_y`]) of a packet's rays, from their
+    /// heights and climbs in object space (`view` as for [`Solid::object_rays8`]).
     #[inline(always)]
     fn plane8<L: Lanes4>(
         &self,
@@ -89,18 +104,8 @@ impl Solid {
         t_min: f64,
         t_max: &[f64; 8],
     ) -> (u32, [f64; 8]) {
-        let m = &self.object_from_world;
-        let dy = n.carry_coordinate(&m.matrix3, 1, n.load3(&lanes3(rays, |r| r.dir)));
-        let y0 = if view {
-            n.splat(self.view_origin.y)
-        } else {
-            let o = n.load3(&lanes3(rays, |r| r.origin));
-            n.add(
-                n.carry_coordinate(&m.matrix3, 1, o),
-                n.splat(m.translation.y),
-            )
-        };
-        let (hit, lambda) = plane::lambdas_from_y(n, y0, dy, t_min, n.load(t_max));
+        let (origin, dir) = self.object_rays8(n, rays, view);
+        let (hit, lambda) = plane::lambdas_from_y(n, origin[1], dir[1], t_min, n.load(t_max));
         (hit, n.store(lambda))
     }
 
