@@ -1,11 +1,12 @@
 //! Arithmetic in lanes that gives each lane the bits one number alone would have:
 //! four f64 lanes ([`Lanes4`]), and a formula written once for one number or eight
 //! lanes (`Arith`): generic over it, a formula computes a lone ray's or hit's numbers
-//! in `One` and a packet's in `Eight`, every step the same IEEE operation in the same
-//! order (no fused steps, choices instead of `f64::max`, whose sign of a zero is the
-//! compiler's), so each lane is the lone number bit for bit. The light terms
-//! (`render::shade::light`), a packet's sphere tests (`shapes::sphere`) and the carrying
-//! of rays into an object's space (`Ray::transformed`) are written over it.
+//! in `One` (or a lone ray's three axes side by side in `Four`) and a packet's in
+//! `Eight`, every step the same IEEE operation in the same order (no fused steps,
+//! choices instead of `f64::max`, whose sign of a zero is the compiler's), so each lane
+//! is the lone number bit for bit. The light terms (`render::shade::light`), a packet's
+//! sphere, plane and cube tests (`shapes::sphere`, `shapes::plane`, `shapes::cube`) and
+//! the carrying of rays into an object's space (`Ray::transformed`) are written over it.
 
 use std::ops::{Add, Div, Mul, Sub};
 
@@ -377,5 +378,64 @@ impl<L: Lanes4> Arith for Eight<L> {
     #[inline(always)]
     fn ne(self, a: Self::N, b: Self::N) -> u32 {
         self.0.ne(a[0], b[0]) | self.0.ne(a[1], b[1]) << 4
+    }
+}
+
+/// Four lanes, one vector of [`Lanes4`] `L`: a lone ray's numbers of three axes (and a
+/// spare lane) computed side by side, as the cube's faces are.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Four<L>(pub(crate) L);
+
+impl<L: Lanes4> Arith for Four<L> {
+    type N = L::V;
+
+    #[inline(always)]
+    fn splat(self, x: f64) -> Self::N {
+        self.0.splat(x)
+    }
+    #[inline(always)]
+    fn add(self, a: Self::N, b: Self::N) -> Self::N {
+        a + b
+    }
+    #[inline(always)]
+    fn sub(self, a: Self::N, b: Self::N) -> Self::N {
+        a - b
+    }
+    #[inline(always)]
+    fn mul(self, a: Self::N, b: Self::N) -> Self::N {
+        a * b
+    }
+    #[inline(always)]
+    fn div(self, a: Self::N, b: Self::N) -> Self::N {
+        a / b
+    }
+    #[inline(always)]
+    fn sqrt(self, a: Self::N) -> Self::N {
+        self.0.sqrt(a)
+    }
+    #[inline(always)]
+    fn abs(self, a: Self::N) -> Self::N {
+        self.0.abs(a)
+    }
+    #[inline(always)]
+    fn neg(self, a: Self::N) -> Self::N {
+        // As `Eight`'s.
+        self.sub(self.splat(-0.0), a)
+    }
+    #[inline(always)]
+    fn pick_gt(self, a: Self::N, b: Self::N, x: Self::N, y: Self::N) -> Self::N {
+        self.0.pick_gt(a, b, x, y)
+    }
+    #[inline(always)]
+    fn ge(self, a: Self::N, b: Self::N) -> u32 {
+        self.0.ge(a, b)
+    }
+    #[inline(always)]
+    fn gt(self, a: Self::N, b: Self::N) -> u32 {
+        self.0.gt(a, b)
+    }
+    #[inline(always)]
+    fn ne(self, a: Self::N, b: Self::N) -> u32 {
+        self.0.ne(a, b)
     }
 }

@@ -44,3 +44,14 @@ pub const PRIMARY_LAMBDA_MIN: f64 = 1e-9;
 
 /// Below this `|Δ|` a ray is parallel to a face and the face is skipped (`docs/spec/shapes.md`).
 pub const PARALLEL_EPSILON: f64 = 1e-12;
+
+/// The vectors `v(ray)` of a packet's eight rays, coordinate by coordinate (each in
+/// lanes).
+#[inline(always)]
+pub(crate) fn lanes3(rays: &[Ray; 8], v: impl Fn(&Ray) -> DVec3) -> [[f64; 8]; 3] {
+    let mut c = [[0.0; 8]; 3];
+    for (k, ray) in rays.iter().enumerate() {
+        (c[0][k], c[1][k], c[2][k]) = v(ray).into();
+    }
+    c
+}

@@ -7,7 +7,8 @@ use std::borrow::Cow;
 
 use super::CanonicalShape;
 use crate::geometry::{
-    bounds::Aabb,
+    arith::{Arith, Eight, Four, Lanes4, Portable},
+    bounds::{Aabb, lanes_of},
     hit::{Face, FaceTest, Probe},
     ray::{PARALLEL_EPSILON, Ray},
 };
@@ -65,14 +66,8 @@ impl CanonicalShape for Cube {
 #[inline]
 pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> Option<(f64, u32)> {
     let d = ray.dir;
-    let [plus, minus] = faces(ray).map(|(t, pj, pk, within)| {
-        (
-            t.to_array(),
-            pj.to_array(),
-            pk.to_array(),
-            within.to_bitmask(),
-        )
-    });
+    let [plus, minus] =
+        faces(ray).map(|(t, pj, pk, within)| (t.to_array(), pj.to_array(), pk.to_array(), within));
     let mut best: Option<(f64, u32)> = None;
     let mut limit = t_max;
     for (i, face) in Face::ALL.into_iter().enumerate() {
@@ -111,24 +106,76 @@ pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> 
     best
 }
 
-/// For the faces of sign +1, then −1, a lane an axis: `λ`, the point's other two
-/// coordinates, and whether they lie on the face. Lane `a` holds axis `a`, then its two
-/// others (`(a + 1) % 3`, `(a + 2) % 3`); the fourth lane is unused (a direction of 1
-/// there keeps it finite).
+/// For the faces of sign +1, then −1, a lane an axis ([`crossing`] in four lanes):
+/// `λ`, the point's other two coordinates, and the lanes where they lie on the face.
+/// Lane `a` holds axis `a`, then its two others (`(a + 1) % 3`, `(a + 2) % 3`); the
+/// fourth lane is unused (a direction of 1 there keeps it finite).
 #[inline(always)]
-fn faces(ray: &Ray) -> [(f64x4, f64x4, f64x4, f64x4); 2] {
+fn faces(ray: &Ray) -> [(f64x4, f64x4, f64x4, u32); 2] {
     let (o, d) = (ray.origin, ray.dir);
     let lanes = |x: f64, y: f64, z: f64, w: f64| f64x4::new([x, y, z, w]);
-    let (o_a, d_a) = (lanes(o.x, o.y, o.z, 0.0), lanes(d.x, d.y, d.z, 1.0));
-    let (o_j, d_j) = (lanes(o.y, o.z, o.x, 0.0), lanes(d.y, d.z, d.x, 0.0));
-    let (o_k, d_k) = (lanes(o.z, o.x, o.y, 0.0), lanes(d.z, d.x, d.y, 0.0));
-    let unit = |p: f64x4| p.simd_ge(f64x4::splat(-1.0)) & p.simd_le(f64x4::splat(1.0));
-    [1.0, -1.0].map(|sign| {
-        let t = (f64x4::splat(sign) - o_a) / d_a;
-        let pj = o_j + t * d_j;
-        let pk = o_k + t * d_k;
-        (t, pj, pk, unit(pj) & unit(pk))
-    })
+    let o = [
+        lanes(o.x, o.y, o.z, 0.0),
+        lanes(o.y, o.z, o.x, 0.0),
+        lanes(o.z, o.x, o.y, 0.0),
+    ];
+    let d = [
+        lanes(d.x, d.y, d.z, 1.0),
+        lanes(d.y, d.z, d.x, 0.0),
+        lanes(d.z, d.x, d.y, 0.0),
+    ];
+    [1.0, -1.0].map(|sign| crossing(Four(Portable), sign, o, d))
+}
+
+/// Where rays cross the plane `axis = sign` of a face, given their coordinates along
+/// the face's axis and its two others (`o`, `d`: `[a, j, k]`), in one number or in
+/// lanes: `λ = (sign − o_a) / d_a`, the point's other two coordinates, and the lanes
+/// where both lie in `[−1, 1]` (the point on the face, edges included).
+#[inline(always)]
+fn crossing<A: Arith>(n: A, sign: f64, o: [A::N; 3], d: [A::N; 3]) -> (A::N, A::N, A::N, u32) {
+    let t = n.div(n.sub(n.splat(sign), o[0]), d[0]);
+    let pj = n.add(o[1], n.mul(t, d[1]));
+    let pk = n.add(o[2], n.mul(t, d[2]));
+    let unit = |p| n.ge(p, n.splat(-1.0)) & n.ge(n.splat(1.0), p);
+    (t, pj, pk, unit(pj) & unit(pk))
+}
+
+/// [`intersect`] for eight rays at once, in lanes (`origin` and `dir` in object space,
+/// each lane a ray), nothing recorded: the bit set of the lanes that find a face in
+/// `(t_min, t_max[lane])`, and for those its `λ` and index. Each face's numbers are
+/// the lone ray's ([`crossing`], the same operations), and the faces are taken in the
+/// same order by the same rule (a parallel face skipped, a nearer valid one replacing
+/// the best, a tie kept by the first), so each lane's answer is the lone ray's.
+#[inline(always)]
+pub(crate) fn intersect8<L: Lanes4>(
+    n: Eight<L>,
+    origin: [[L::V; 2]; 3],
+    dir: [[L::V; 2]; 3],
+    t_min: f64,
+    t_max: &[f64; 8],
+) -> (u32, [f64; 8], [u32; 8]) {
+    let (low, epsilon) = (n.splat(t_min), n.splat(PARALLEL_EPSILON));
+    let (mut first, mut part) = (*t_max, [0; 8]);
+    let mut limit = n.load(t_max);
+    let mut hit = 0;
+    for (i, face) in Face::ALL.into_iter().enumerate() {
+        let (axis, sign) = face.axis_sign();
+        let (j, k) = ((axis + 1) % 3, (axis + 2) % 3);
+        // Not skipped as parallel: `|Δ| < ε` fails (a NaN is not skipped, as alone).
+        let across = !n.gt(epsilon, n.abs(dir[axis]));
+        let o = [origin[axis], origin[j], origin[k]];
+        let (t, _, _, within) = crossing(n, sign, o, [dir[axis], dir[j], dir[k]]);
+        let take = across & within & n.gt(t, low) & n.gt(limit, t) & 0xff;
+        if take != 0 {
+            let t = n.store(t);
+            for lane in lanes_of(take) {
+                (first[lane], part[lane]) = (t[lane], i as u32);
+            }
+            hit |= take;
+            limit = n.load(&first);
+        }
+    }
+    (hit, first, part)
 }
 
 /// Whether [`intersect`] finds a face in `(t_min, t_max)`: whether some face that it
@@ -137,14 +184,16 @@ fn faces(ray: &Ray) -> [(f64x4, f64x4, f64x4, f64x4); 2] {
 #[inline]
 pub fn occludes(ray: &Ray, t_min: f64, t_max: f64) -> bool {
     let d = ray.dir;
+    let n = Four(Portable);
     // The fourth lane's direction is 0: never a face.
-    let across = f64x4::new([d.x, d.y, d.z, 0.0])
-        .abs()
-        .simd_ge(f64x4::splat(PARALLEL_EPSILON));
-    let (lo, hi) = (f64x4::splat(t_min), f64x4::splat(t_max));
+    let across = n.ge(
+        n.abs(f64x4::new([d.x, d.y, d.z, 0.0])),
+        n.splat(PARALLEL_EPSILON),
+    );
+    let (lo, hi) = (n.splat(t_min), n.splat(t_max));
     faces(ray)
         .into_iter()
-        .any(|(t, _, _, within)| (within & across & t.simd_gt(lo) & t.simd_lt(hi)).any())
+        .any(|(t, _, _, within)| within & across & n.gt(t, lo) & n.gt(hi, t) != 0)
 }
 
 /// The face of a part index.
@@ -160,6 +209,7 @@ pub fn normal(part: u32) -> DVec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::ray::lanes3;
 
     fn hit(o: [f64; 3], d: [f64; 3]) -> Option<(f64, Face)> {
         intersect(&Ray::new(o.into(), d.into()), 1e-9, f64::INFINITY, &mut ())
@@ -254,6 +304,74 @@ mod tests {
             prop_assert_eq!(occludes(&ray, 1e-9, t_max), one_by_one.is_some());
             if let Some((t, _)) = one_by_one {
                 prop_assert_eq!(occludes(&ray, 1e-9, t), intersect(&ray, 1e-9, t, &mut ()).is_some());
+            }
+        }
+    }
+
+    /// A coordinate of a ray for the packet's test: on the half grid (faces, edges and
+    /// corners), anywhere near the cube, or extreme.
+    fn coordinate() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            (-8i32..8).prop_map(|c| c as f64 * 0.5),
+            -3.0f64..3.0,
+            Just(0.0),
+            Just(-0.0),
+            Just(1e-13),
+            Just(-1e-12),
+            Just(1e-12),
+            Just(1e-300),
+            Just(-1e200),
+            Just(f64::INFINITY),
+        ]
+    }
+
+    /// [`intersect8`] in the lanes of `n` against [`intersect`] of each ray alone.
+    fn lanes_agree<L: Lanes4>(
+        n: Eight<L>,
+        rays: &[Ray; 8],
+        t_min: f64,
+        t_max: &[f64; 8],
+    ) -> Result<(), TestCaseError> {
+        let lanes = |v: fn(&Ray) -> DVec3| n.load3(&lanes3(rays, v));
+        let (hit, first, part) = intersect8(n, lanes(|r| r.origin), lanes(|r| r.dir), t_min, t_max);
+        for (k, r) in rays.iter().enumerate() {
+            let alone = intersect(r, t_min, t_max[k], &mut ());
+            let lane = (hit >> k & 1 == 1).then_some((first[k], part[k]));
+            prop_assert_eq!(
+                lane.map(|(t, i)| (t.to_bits(), i)),
+                alone.map(|(t, i)| (t.to_bits(), i)),
+                "lane {} {:?}",
+                k,
+                r
+            );
+        }
+        Ok(())
+    }
+
+    proptest! {
+        /// Eight rays at once, each in its lane to its own `t_max`: through faces,
+        /// edges and corners, along faces, parallel to them by the threshold, from
+        /// inside, with coordinates of every scale: each lane finds the face and `λ`
+        /// its ray finds alone, bit for bit, in SSE2 lanes and, where the processor has
+        /// them, in AVX2 lanes.
+        #[test]
+        fn eight_rays_in_lanes_find_what_each_finds_alone(
+            rays in prop::array::uniform8(
+                (prop::array::uniform3(coordinate()), prop::array::uniform3(coordinate()))
+                    .prop_map(|(o, d)| Ray::new(o.into(), d.into())),
+            ),
+            t_min in prop_oneof![Just(1e-9), Just(0.0), Just(-1.0)],
+            t_max in prop::array::uniform8(prop_oneof![
+                Just(f64::INFINITY),
+                Just(1.5),
+                Just(0.5),
+                0.0f64..6.0,
+            ]),
+        ) {
+            lanes_agree(Eight(Portable), &rays, t_min, &t_max)?;
+            #[cfg(target_arch = "x86_64")]
+            if let Some(avx2) = crate::geometry::bounds::x86::Avx2::detect() {
+                avx2.run(|| lanes_agree(Eight(avx2), &rays, t_min, &t_max))?;
             }
         }
     }

@@ -117,6 +117,7 @@ pub fn normal(p: DVec3) -> DVec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::ray::lanes3;
 
     #[test]
     fn lecture_tangent_hit() {
@@ -220,14 +221,8 @@ mod tests {
         t_min: f64,
         t_max: &[f64; 8],
     ) -> Result<(), TestCaseError> {
-        let lanes = |v: &dyn Fn(&Ray) -> DVec3| {
-            let mut c = [[0.0; 8]; 3];
-            for (k, r) in rays.iter().enumerate() {
-                (c[0][k], c[1][k], c[2][k]) = v(r).into();
-            }
-            n.load3(&c)
-        };
-        let (hit, first) = intersect8(n, lanes(&|r| r.origin), lanes(&|r| r.dir), t_min, t_max);
+        let lanes = |v: fn(&Ray) -> DVec3| n.load3(&lanes3(rays, v));
+        let (hit, first) = intersect8(n, lanes(|r| r.origin), lanes(|r| r.dir), t_min, t_max);
         for (k, r) in rays.iter().enumerate() {
             let alone = intersect(r, t_min, t_max[k], &mut ());
             let lane = (hit >> k & 1 == 1).then_some(first[k]);
