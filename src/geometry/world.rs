@@ -78,34 +78,32 @@ impl Solid {
         (origin, dir)
     }
 
-    /// A sphere's test ([`sphere::intersect8`]) of a packet's rays (`view` as for
+    /// The packet's rays tested in lanes, for a shape that has a test in lanes (a
+    /// sphere's [`sphere::intersect8`], a cube's [`cube::intersect8`]): the lanes that
+    /// hit, and each one's `λ` and part; `None` for other shapes (`view` as for
     /// [`Solid::object_rays8`]).
+    #[allow(clippy::type_complexity)]
     #[inline(always)]
-    fn sphere8<L: Lanes4>(
+    fn intersect_in_lanes8<L: Lanes4>(
         &self,
         n: Eight<L>,
         rays: &[Ray; 8],
         view: bool,
         t_min: f64,
         t_max: &[f64; 8],
-    ) -> (u32, [f64; 8]) {
-        let (origin, dir) = self.object_rays8(n, rays, view);
-        sphere::intersect8(n, origin, dir, t_min, t_max)
-    }
-
-    /// A cube's test ([`cube::intersect8`]) of a packet's rays (`view` as for
-    /// [`Solid::object_rays8`]): the lanes that hit, and each one's `λ` and face.
-    #[inline(always)]
-    fn cube8<L: Lanes4>(
-        &self,
-        n: Eight<L>,
-        rays: &[Ray; 8],
-        view: bool,
-        t_min: f64,
-        t_max: &[f64; 8],
-    ) -> (u32, [f64; 8], [u32; 8]) {
-        let (origin, dir) = self.object_rays8(n, rays, view);
-        cube::intersect8(n, origin, dir, t_min, t_max)
+    ) -> Option<(u32, [f64; 8], [u32; 8])> {
+        match self.shape {
+            Shape::Sphere => {
+                let (origin, dir) = self.object_rays8(n, rays, view);
+                let (hit, lambda) = sphere::intersect8(n, origin, dir, t_min, t_max);
+                Some((hit, lambda, [0; 8]))
+            }
+            Shape::Cube => {
+                let (origin, dir) = self.object_rays8(n, rays, view);
+                Some(cube::intersect8(n, origin, dir, t_min, t_max))
+            }
+            _ => None,
+        }
     }
 
     /// A plane's test ([`plane::lambdas_from_y`]) of a packet's rays, from their
@@ -508,9 +506,9 @@ impl World {
 
     /// Object `i` for the rays of `active` (of [`World::closest8`]), each taken by the
     /// rule of `closest_probed`, so the same hits. `next_up` lets an equal λ through.
-    /// A sphere and a cube take the eight rays in lanes ([`Solid::sphere8`],
-    /// [`Solid::cube8`]), other shapes one at a time unless they have a packet test of
-    /// their own.
+    /// A sphere and a cube take the eight rays in lanes
+    /// ([`Solid::intersect_in_lanes8`]), other shapes one at a time unless they have a
+    /// packet test of their own.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn consider8(
@@ -525,15 +523,9 @@ impl World {
     ) {
         let s = &self.solids[i as usize];
         let below = &best.below;
-        if let Shape::Sphere | Shape::Cube = s.shape {
-            let view = from_view == [true; 8];
-            let (hit, lambda, part) = match s.shape {
-                Shape::Sphere => in_lanes!(n => {
-                    let (hit, lambda) = s.sphere8(n, rays, view, t_min, below);
-                    (hit, lambda, [0; 8])
-                }),
-                _ => in_lanes!(n => s.cube8(n, rays, view, t_min, below)),
-            };
+        let view = from_view == [true; 8];
+        let in_lanes = in_lanes!(n => s.intersect_in_lanes8(n, rays, view, t_min, below));
+        if let Some((hit, lambda, part)) = in_lanes {
             for lane in lanes_of(active & hit) {
                 best.keep(lane, i, Some((lambda[lane], part[lane])), &mut limit[lane]);
             }
