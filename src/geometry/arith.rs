@@ -5,8 +5,9 @@
 //! `Eight`, every step the same IEEE operation in the same order (no fused steps,
 //! choices instead of `f64::max`, whose sign of a zero is the compiler's), so each lane
 //! is the lone number bit for bit. The light terms (`render::shade::light`), a packet's
-//! sphere, plane and cube tests (`shapes::sphere`, `shapes::plane`, `shapes::cube`) and
-//! the carrying of rays into an object's space (`Ray::transformed`) are written over it.
+//! tests of the shapes other than a mesh (`shapes::Shape::intersect_in_lanes8`, and a
+//! plane's `shapes::plane::lambdas_from_y`) and the carrying of rays into an object's
+//! space (`Ray::transformed`) are written over it.
 
 use std::ops::{Add, Div, Mul, Sub};
 

@@ -18,7 +18,7 @@ use super::{
     bvh::Bvh,
     hit::{Hit, Probe, Surface},
     ray::{Ray, lanes3},
-    shapes::{Shape, cube, plane, sphere},
+    shapes::{Shape, plane},
     transform::Transform,
 };
 
@@ -78,9 +78,9 @@ impl Solid {
         (origin, dir)
     }
 
-    /// The packet's rays tested in lanes, for a shape that has a test in lanes (a
-    /// sphere's [`sphere::intersect8`], a cube's [`cube::intersect8`]): the lanes that
-    /// hit, and each one's `λ` and part; `None` for other shapes (`view` as for
+    /// The packet's rays tested in lanes, for a shape that has a test in lanes
+    /// ([`Shape::intersect_in_lanes8`]): the lanes that hit, and each one's `λ` and
+    /// part; `None` for other shapes, whose rays are then not carried (`view` as for
     /// [`Solid::object_rays8`]).
     #[allow(clippy::type_complexity)]
     #[inline(always)]
@@ -92,18 +92,13 @@ impl Solid {
         t_min: f64,
         t_max: &[f64; 8],
     ) -> Option<(u32, [f64; 8], [u32; 8])> {
-        match self.shape {
-            Shape::Sphere => {
-                let (origin, dir) = self.object_rays8(n, rays, view);
-                let (hit, lambda) = sphere::intersect8(n, origin, dir, t_min, t_max);
-                Some((hit, lambda, [0; 8]))
-            }
-            Shape::Cube => {
-                let (origin, dir) = self.object_rays8(n, rays, view);
-                Some(cube::intersect8(n, origin, dir, t_min, t_max))
-            }
-            _ => None,
-        }
+        self.shape.intersect_in_lanes8(
+            n,
+            #[inline(always)]
+            || self.object_rays8(n, rays, view),
+            t_min,
+            t_max,
+        )
     }
 
     /// A plane's test ([`plane::lambdas_from_y`]) of a packet's rays, from their
@@ -506,7 +501,7 @@ impl World {
 
     /// Object `i` for the rays of `active` (of [`World::closest8`]), each taken by the
     /// rule of `closest_probed`, so the same hits. `next_up` lets an equal λ through.
-    /// A sphere and a cube take the eight rays in lanes
+    /// Spheres, cubes, cylinders, cones and disks take the eight rays in lanes
     /// ([`Solid::intersect_in_lanes8`]), other shapes one at a time unless they have a
     /// packet test of their own.
     #[allow(clippy::too_many_arguments)]

@@ -3,7 +3,12 @@
 
 use glam::DVec3;
 
-use super::{CanonicalShape, plane::intersect_y0, solve_quadratic};
+use super::{
+    CanonicalShape, Nearest8, discriminant, on_side,
+    plane::{crossings8, intersect_y0},
+    roots, solve_quadratic,
+};
+use crate::geometry::arith::{Arith, Eight, Lanes4, One};
 use crate::geometry::{bounds::Aabb, hit::Probe, ray::Ray};
 
 /// The parts' labels, by part index; the tests report under the same labels.
@@ -47,29 +52,102 @@ impl CanonicalShape for Cone {
 #[inline]
 pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> Option<(f64, u32)> {
     let (o, d) = (ray.origin, ray.dir);
-    let k = 1.0 - o.y;
-    let a = d.x * d.x + d.z * d.z - 0.25 * d.y * d.y;
-    let b = 2.0 * (o.x * d.x + o.z * d.z) + 0.5 * k * d.y;
-    let c = o.x * o.x + o.z * o.z - 0.25 * k * k;
+    let (a, b, c) = coefficients(One, o.to_array(), d.to_array());
     let mut best: Option<(f64, u32)> = None;
     let mut limit = t_max;
     let roots = if a == 0.0 {
         // Parallel to a generator line: the quadratic is linear.
-        [(b != 0.0).then(|| -c / b), None]
+        [(b != 0.0).then(|| linear_root(One, b, c)), None]
     } else {
         solve_quadratic(PARTS[0], a, b, c, probe)
     };
     for t in roots.into_iter().flatten() {
-        let y = o.y + t * d.y;
-        if (-1.0..=1.0).contains(&y) && t > t_min && t < limit {
+        if on_side(One, o.y, d.y, t) != 0 && t > t_min && t < limit {
             best = Some((t, 0));
             limit = t;
         }
     }
-    if let Some(t) = intersect_y0(PARTS[1], ray, -1.0, 1.0, t_min, limit, probe) {
+    if let Some(t) = intersect_y0(PARTS[1], ray, BASE, 1.0, t_min, limit, probe) {
         best = Some((t, 1));
     }
     best
+}
+
+/// The base's height.
+const BASE: f64 = -1.0;
+
+/// [`intersect`] for eight rays at once, in lanes (`origin` and `dir` in object space,
+/// each lane a ray), nothing recorded: the bit set of the lanes that find a part in
+/// `(t_min, t_max[lane])`, and for those its `λ` and index. The side's roots and the
+/// base's crossing are the lone ray's numbers (the same operations), kept by the same
+/// rule ([`Nearest8`]): the nearest valid one, a tie to the side. A linear side has
+/// one root where `a = 0`, else the quadratic has two, which the lone ray sorts (`a`
+/// may be negative); here the nearer valid root is kept whichever comes first, and
+/// where one is NaN, the lone ray's `min` and `max` both give the other, which is the
+/// one valid here. A zero discriminant's two roots are equal, so the second changes
+/// nothing where the lone ray has only the first.
+#[inline(always)]
+pub(crate) fn intersect8<L: Lanes4>(
+    n: Eight<L>,
+    origin: [[L::V; 2]; 3],
+    dir: [[L::V; 2]; 3],
+    t_min: f64,
+    t_max: &[f64; 8],
+) -> (u32, [f64; 8], [u32; 8]) {
+    let mut nearest = Nearest8::new(n, t_min, t_max);
+    let (a, b, c) = coefficients(n, origin, dir);
+    let zero = n.splat(0.0);
+    // `a = 0` exactly (a NaN is not).
+    let linear = !n.ne(a, zero) & 0xff;
+    if linear != 0 {
+        let t = linear_root(n, b, c);
+        nearest.offer(
+            n,
+            linear & n.ne(b, zero) & on_side(n, origin[1], dir[1], t),
+            t,
+            0,
+        );
+    }
+    let disc = discriminant(n, a, b, c);
+    let real = n.ge(disc, zero) & n.ne(a, zero);
+    if real != 0 {
+        let (r0, r1) = roots(n, a, b, disc);
+        for t in [r0, r1] {
+            nearest.offer(n, real & on_side(n, origin[1], dir[1], t), t, 0);
+        }
+    }
+    let (across, t) = crossings8(n, BASE, 1.0, origin, dir);
+    nearest.offer(n, across, t, 1);
+    nearest.found()
+}
+
+/// The side's quadratic, with `k = 1 − y₀`: `a = Δx² + Δz² − Δy²/4`,
+/// `b = 2(x₀Δx + z₀Δz) + kΔy/2`, `c = x₀² + z₀² − k²/4`, in one number or in lanes.
+#[inline(always)]
+fn coefficients<A: Arith>(n: A, o: [A::N; 3], d: [A::N; 3]) -> (A::N, A::N, A::N) {
+    let k = n.sub(n.splat(1.0), o[1]);
+    let a = n.sub(
+        n.add(n.mul(d[0], d[0]), n.mul(d[2], d[2])),
+        quarter(n, d[1]),
+    );
+    let b = n.add(
+        n.mul(n.splat(2.0), n.add(n.mul(o[0], d[0]), n.mul(o[2], d[2]))),
+        n.mul(n.mul(n.splat(0.5), k), d[1]),
+    );
+    let c = n.sub(n.add(n.mul(o[0], o[0]), n.mul(o[2], o[2])), quarter(n, k));
+    (a, b, c)
+}
+
+/// `x²/4`, as `0.25 · x · x`.
+#[inline(always)]
+fn quarter<A: Arith>(n: A, x: A::N) -> A::N {
+    n.mul(n.mul(n.splat(0.25), x), x)
+}
+
+/// The linear side's root `−c / b` (where `a = 0`), in one number or in lanes.
+#[inline(always)]
+fn linear_root<A: Arith>(n: A, b: A::N, c: A::N) -> A::N {
+    n.div(n.neg(c), b)
 }
 
 /// The outward normal: the gradient `(x, (1 − y)/4, z)` of the side, `(0, −1, 0)` on the

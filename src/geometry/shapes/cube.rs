@@ -5,10 +5,10 @@ use wide::f64x4;
 
 use std::borrow::Cow;
 
-use super::CanonicalShape;
+use super::{CanonicalShape, Nearest8, within_unit};
 use crate::geometry::{
     arith::{Arith, Eight, Four, Lanes4, Portable},
-    bounds::{Aabb, lanes_of},
+    bounds::Aabb,
     hit::{Face, FaceTest, Probe},
     ray::{PARALLEL_EPSILON, Ray},
 };
@@ -136,8 +136,7 @@ fn crossing<A: Arith>(n: A, sign: f64, o: [A::N; 3], d: [A::N; 3]) -> (A::N, A::
     let t = n.div(n.sub(n.splat(sign), o[0]), d[0]);
     let pj = n.add(o[1], n.mul(t, d[1]));
     let pk = n.add(o[2], n.mul(t, d[2]));
-    let unit = |p| n.ge(p, n.splat(-1.0)) & n.ge(n.splat(1.0), p);
-    (t, pj, pk, unit(pj) & unit(pk))
+    (t, pj, pk, within_unit(n, pj) & within_unit(n, pk))
 }
 
 /// [`intersect`] for eight rays at once, in lanes (`origin` and `dir` in object space,
@@ -154,10 +153,8 @@ pub(crate) fn intersect8<L: Lanes4>(
     t_min: f64,
     t_max: &[f64; 8],
 ) -> (u32, [f64; 8], [u32; 8]) {
-    let (low, epsilon) = (n.splat(t_min), n.splat(PARALLEL_EPSILON));
-    let (mut first, mut part) = (*t_max, [0; 8]);
-    let mut limit = n.load(t_max);
-    let mut hit = 0;
+    let epsilon = n.splat(PARALLEL_EPSILON);
+    let mut nearest = Nearest8::new(n, t_min, t_max);
     for (i, face) in Face::ALL.into_iter().enumerate() {
         let (axis, sign) = face.axis_sign();
         let (j, k) = ((axis + 1) % 3, (axis + 2) % 3);
@@ -165,17 +162,9 @@ pub(crate) fn intersect8<L: Lanes4>(
         let across = !n.gt(epsilon, n.abs(dir[axis]));
         let o = [origin[axis], origin[j], origin[k]];
         let (t, _, _, within) = crossing(n, sign, o, [dir[axis], dir[j], dir[k]]);
-        let take = across & within & n.gt(t, low) & n.gt(limit, t) & 0xff;
-        if take != 0 {
-            let t = n.store(t);
-            for lane in lanes_of(take) {
-                (first[lane], part[lane]) = (t[lane], i as u32);
-            }
-            hit |= take;
-            limit = n.load(&first);
-        }
+        nearest.offer(n, across & within, t, i as u32);
     }
-    (hit, first, part)
+    nearest.found()
 }
 
 /// Whether [`intersect`] finds a face in `(t_min, t_max)`: whether some face that it
@@ -209,7 +198,6 @@ pub fn normal(part: u32) -> DVec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::ray::lanes3;
 
     fn hit(o: [f64; 3], d: [f64; 3]) -> Option<(f64, Face)> {
         intersect(&Ray::new(o.into(), d.into()), 1e-9, f64::INFINITY, &mut ())
@@ -304,74 +292,6 @@ mod tests {
             prop_assert_eq!(occludes(&ray, 1e-9, t_max), one_by_one.is_some());
             if let Some((t, _)) = one_by_one {
                 prop_assert_eq!(occludes(&ray, 1e-9, t), intersect(&ray, 1e-9, t, &mut ()).is_some());
-            }
-        }
-    }
-
-    /// A coordinate of a ray for the packet's test: on the half grid (faces, edges and
-    /// corners), anywhere near the cube, or extreme.
-    fn coordinate() -> impl Strategy<Value = f64> {
-        prop_oneof![
-            (-8i32..8).prop_map(|c| c as f64 * 0.5),
-            -3.0f64..3.0,
-            Just(0.0),
-            Just(-0.0),
-            Just(1e-13),
-            Just(-1e-12),
-            Just(1e-12),
-            Just(1e-300),
-            Just(-1e200),
-            Just(f64::INFINITY),
-        ]
-    }
-
-    /// [`intersect8`] in the lanes of `n` against [`intersect`] of each ray alone.
-    fn lanes_agree<L: Lanes4>(
-        n: Eight<L>,
-        rays: &[Ray; 8],
-        t_min: f64,
-        t_max: &[f64; 8],
-    ) -> Result<(), TestCaseError> {
-        let lanes = |v: fn(&Ray) -> DVec3| n.load3(&lanes3(rays, v));
-        let (hit, first, part) = intersect8(n, lanes(|r| r.origin), lanes(|r| r.dir), t_min, t_max);
-        for (k, r) in rays.iter().enumerate() {
-            let alone = intersect(r, t_min, t_max[k], &mut ());
-            let lane = (hit >> k & 1 == 1).then_some((first[k], part[k]));
-            prop_assert_eq!(
-                lane.map(|(t, i)| (t.to_bits(), i)),
-                alone.map(|(t, i)| (t.to_bits(), i)),
-                "lane {} {:?}",
-                k,
-                r
-            );
-        }
-        Ok(())
-    }
-
-    proptest! {
-        /// Eight rays at once, each in its lane to its own `t_max`: through faces,
-        /// edges and corners, along faces, parallel to them by the threshold, from
-        /// inside, with coordinates of every scale: each lane finds the face and `λ`
-        /// its ray finds alone, bit for bit, in SSE2 lanes and, where the processor has
-        /// them, in AVX2 lanes.
-        #[test]
-        fn eight_rays_in_lanes_find_what_each_finds_alone(
-            rays in prop::array::uniform8(
-                (prop::array::uniform3(coordinate()), prop::array::uniform3(coordinate()))
-                    .prop_map(|(o, d)| Ray::new(o.into(), d.into())),
-            ),
-            t_min in prop_oneof![Just(1e-9), Just(0.0), Just(-1.0)],
-            t_max in prop::array::uniform8(prop_oneof![
-                Just(f64::INFINITY),
-                Just(1.5),
-                Just(0.5),
-                0.0f64..6.0,
-            ]),
-        ) {
-            lanes_agree(Eight(Portable), &rays, t_min, &t_max)?;
-            #[cfg(target_arch = "x86_64")]
-            if let Some(avx2) = crate::geometry::bounds::x86::Avx2::detect() {
-                avx2.run(|| lanes_agree(Eight(avx2), &rays, t_min, &t_max))?;
             }
         }
     }

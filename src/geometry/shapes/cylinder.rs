@@ -4,7 +4,12 @@
 
 use glam::DVec3;
 
-use super::{CanonicalShape, plane::intersect_y0, roots_ahead};
+use super::{
+    CanonicalShape, Nearest8, discriminant, on_side,
+    plane::{crossings8, intersect_y0},
+    roots, roots_ahead,
+};
+use crate::geometry::arith::{Arith, Eight, Lanes4, One};
 use crate::geometry::{bounds::Aabb, hit::Probe, ray::Ray};
 
 /// The parts' labels, by part index; the tests report under the same labels.
@@ -45,7 +50,7 @@ impl CanonicalShape for Cylinder {
 #[inline]
 pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> Option<(f64, u32)> {
     let (o, d) = (ray.origin, ray.dir);
-    let (a, b, c) = side_coefficients(ray);
+    let (a, b, c) = side_coefficients(One, o.to_array(), d.to_array());
     let mut best: Option<(f64, u32)> = None;
     let mut limit = t_max;
     // A shadow or mirror ray leaving the side has no root of the side's ahead of it,
@@ -54,13 +59,12 @@ pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> 
         .into_iter()
         .flatten()
     {
-        let y = o.y + t * d.y;
-        if (-1.0..=1.0).contains(&y) && t > t_min && t < limit {
+        if on_side(One, o.y, d.y, t) != 0 && t > t_min && t < limit {
             best = Some((t, 0));
             limit = t;
         }
     }
-    for (part, (label, h)) in [(PARTS[1], 1.0), (PARTS[2], -1.0)].into_iter().enumerate() {
+    for (part, (label, h)) in CAPS.into_iter().enumerate() {
         if let Some(t) = intersect_y0(label, ray, h, 1.0, t_min, limit, probe) {
             best = Some((t, part as u32 + 1));
             limit = t;
@@ -69,13 +73,51 @@ pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> 
     best
 }
 
-/// The side's quadratic: `a = Δx² + Δz²`, `b = 2(x₀Δx + z₀Δz)`, `c = x₀² + z₀² − 1`.
+/// The caps' labels and heights, in the order the tests take them.
+const CAPS: [(&str, f64); 2] = [(PARTS[1], 1.0), (PARTS[2], -1.0)];
+
+/// [`intersect`] for eight rays at once, in lanes (`origin` and `dir` in object space,
+/// each lane a ray), nothing recorded: the bit set of the lanes that find a part in
+/// `(t_min, t_max[lane])`, and for those its `λ` and index. The side's roots and the
+/// caps' crossings are the lone ray's numbers (the same operations), taken in the same
+/// order by the same rule ([`Nearest8`]): since `a = Δx² + Δz² ≥ 0`, the nearer root
+/// comes first, as alone (where one root is NaN, the lone ray's `min` and `max` both
+/// give the other, which is the one valid here). Roots the lone ray skips as behind it
+/// ([`roots_ahead`]) are computed here, and refused by the interval as they would be
+/// there.
 #[inline(always)]
-fn side_coefficients(ray: &Ray) -> (f64, f64, f64) {
-    let (o, d) = (ray.origin, ray.dir);
-    let a = d.x * d.x + d.z * d.z;
-    let b = 2.0 * (o.x * d.x + o.z * d.z);
-    let c = o.x * o.x + o.z * o.z - 1.0;
+pub(crate) fn intersect8<L: Lanes4>(
+    n: Eight<L>,
+    origin: [[L::V; 2]; 3],
+    dir: [[L::V; 2]; 3],
+    t_min: f64,
+    t_max: &[f64; 8],
+) -> (u32, [f64; 8], [u32; 8]) {
+    let mut nearest = Nearest8::new(n, t_min, t_max);
+    let (a, b, c) = side_coefficients(n, origin, dir);
+    let disc = discriminant(n, a, b, c);
+    let zero = n.splat(0.0);
+    let real = n.ge(disc, zero) & n.ne(a, zero);
+    if real != 0 {
+        let (near, far) = roots(n, a, b, disc);
+        for t in [near, far] {
+            nearest.offer(n, real & on_side(n, origin[1], dir[1], t), t, 0);
+        }
+    }
+    for (part, (_, h)) in CAPS.into_iter().enumerate() {
+        let (across, t) = crossings8(n, h, 1.0, origin, dir);
+        nearest.offer(n, across, t, part as u32 + 1);
+    }
+    nearest.found()
+}
+
+/// The side's quadratic: `a = Δx² + Δz²`, `b = 2(x₀Δx + z₀Δz)`, `c = x₀² + z₀² − 1`,
+/// in one number or in lanes.
+#[inline(always)]
+fn side_coefficients<A: Arith>(n: A, o: [A::N; 3], d: [A::N; 3]) -> (A::N, A::N, A::N) {
+    let a = n.add(n.mul(d[0], d[0]), n.mul(d[2], d[2]));
+    let b = n.mul(n.splat(2.0), n.add(n.mul(o[0], d[0]), n.mul(o[2], d[2])));
+    let c = n.sub(n.add(n.mul(o[0], o[0]), n.mul(o[2], o[2])), n.splat(1.0));
     (a, b, c)
 }
 
@@ -110,8 +152,10 @@ mod tests {
         assert_eq!(normal(DVec3::new(1.0, 0.0, 0.0), 0), DVec3::X);
     }
 
-    use crate::geometry::shapes::leaves_from_outside;
-    use crate::geometry::shapes::tests::{Watching, any_t_max, any_t_min, off_surface, ray_scale};
+    use crate::geometry::shapes::tests::{
+        Watching, any_t_max, any_t_min, lanes_agree, off_surface, ray_scale,
+    };
+    use crate::geometry::shapes::{Shape, leaves_from_outside};
     use proptest::prelude::*;
 
     proptest! {
@@ -143,6 +187,9 @@ mod tests {
                 let want = intersect(&r, t_min, t_max, &mut Watching);
                 prop_assert_eq!(got.map(|(t, p)| (t.to_bits(), p)), want.map(|(t, p)| (t.to_bits(), p)), "{:?}", r);
             }
+            // In lanes, which compute every root: the same answers.
+            let eight = std::array::from_fn(|k| rays[k % rays.len()]);
+            lanes_agree(&Shape::Cylinder, &eight, t_min, &[t_max; 8])?;
         }
     }
 
@@ -154,7 +201,7 @@ mod tests {
         let n = DVec3::new(0.6, 0.0, -0.8);
         let o = n * (1.0 + 1e-9) + DVec3::Y * 0.25;
         let at = |d: DVec3, t_max| intersect(&Ray::new(o, d), 1e-6, t_max, &mut ());
-        let (_, b, c) = side_coefficients(&Ray::new(o, n + DVec3::Y));
+        let (_, b, c) = side_coefficients(One, o.to_array(), (n + DVec3::Y).to_array());
         assert!(leaves_from_outside(b, c));
         assert_eq!(at(n + DVec3::Y, 1.0), None);
         assert_eq!(at(n * 0.1 + DVec3::NEG_Y * 3.0, 10.0), None);

@@ -2,7 +2,8 @@
 
 use glam::DVec3;
 
-use super::CanonicalShape;
+use super::{CanonicalShape, Nearest8};
+use crate::geometry::arith::{Eight, Lanes4};
 use crate::geometry::{bounds::Aabb, hit::Probe, ray::Ray};
 
 /// The disk as a [`CanonicalShape`]: one part, open.
@@ -40,6 +41,23 @@ impl CanonicalShape for Disk {
 #[inline]
 pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> Option<f64> {
     super::plane::intersect_y0("disk", ray, 0.0, 1.0, t_min, t_max, probe)
+}
+
+/// [`intersect`] for eight rays at once, in lanes (`origin` and `dir` in object space,
+/// each lane a ray), nothing recorded: the bit set of the lanes with a hit in
+/// `(t_min, t_max[lane])`, and for those its `λ` (part 0), each the lone ray's.
+#[inline(always)]
+pub(crate) fn intersect8<L: Lanes4>(
+    n: Eight<L>,
+    origin: [[L::V; 2]; 3],
+    dir: [[L::V; 2]; 3],
+    t_min: f64,
+    t_max: &[f64; 8],
+) -> (u32, [f64; 8], [u32; 8]) {
+    let mut nearest = Nearest8::new(n, t_min, t_max);
+    let (across, t) = super::plane::crossings8(n, 0.0, 1.0, origin, dir);
+    nearest.offer(n, across, t, 0);
+    nearest.found()
 }
 
 #[cfg(test)]

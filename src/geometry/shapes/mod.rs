@@ -41,8 +41,8 @@ use glam::DVec3;
 pub use mesh::Mesh;
 
 use super::{
-    arith::{Arith, One},
-    bounds::{Aabb, lanes_where, per_lane},
+    arith::{Arith, Eight, Lanes4, One},
+    bounds::{Aabb, lanes_of, lanes_where, per_lane},
     hit::{Face, Probe},
     ray::Ray,
     transform::Transform,
@@ -362,6 +362,42 @@ impl Shape {
     pub fn name(&self) -> &'static str {
         self.kind().as_str()
     }
+
+    /// [`Shape::intersect`] for eight rays at once, in lanes, nothing recorded, for the
+    /// shapes that have such a test (sphere, cube, cylinder, cone, disk): the bit set
+    /// of the lanes that hit in `(t_min, t_max[lane])`, and for those the `λ` and part
+    /// each ray finds alone, bit for bit; `None` for the others. `rays` gives the eight
+    /// rays in object space (origins, directions), each lane a ray, and is called only
+    /// for a shape that has the test.
+    #[allow(clippy::type_complexity)]
+    #[inline(always)]
+    pub(crate) fn intersect_in_lanes8<L: Lanes4>(
+        &self,
+        n: Eight<L>,
+        rays: impl FnOnce() -> ([[L::V; 2]; 3], [[L::V; 2]; 3]),
+        t_min: f64,
+        t_max: &[f64; 8],
+    ) -> Option<(u32, [f64; 8], [u32; 8])> {
+        // Each test called by name, not chosen as a function pointer: it is then
+        // inlined, in the lanes' instructions.
+        macro_rules! in_lanes {
+            ($test:path) => {{
+                let (origin, dir) = rays();
+                $test(n, origin, dir, t_min, t_max)
+            }};
+        }
+        Some(match self {
+            Shape::Sphere => {
+                let (hit, lambda) = in_lanes!(sphere::intersect8);
+                (hit, lambda, [0; 8])
+            }
+            Shape::Cube => in_lanes!(cube::intersect8),
+            Shape::Cylinder => in_lanes!(cylinder::intersect8),
+            Shape::Cone => in_lanes!(cone::intersect8),
+            Shape::Disk => in_lanes!(disk::intersect8),
+            Shape::Plane | Shape::Mesh(_) => return None,
+        })
+    }
 }
 
 impl ShapeName {
@@ -463,6 +499,68 @@ pub(crate) fn discriminant<A: Arith>(n: A, a: A::N, b: A::N, c: A::N) -> A::N {
     n.sub(n.mul(b, b), n.mul(n.mul(n.splat(4.0), a), c))
 }
 
+/// The lanes where a side's point at `λ = t` lies within its height, `−1 ≤ y ≤ 1`
+/// (`y = y₀ + tΔy`), in one number or in lanes: the cylinder's and the cone's side.
+#[inline(always)]
+pub(crate) fn on_side<A: Arith>(n: A, y0: A::N, dy: A::N, t: A::N) -> u32 {
+    within_unit(n, n.add(y0, n.mul(t, dy)))
+}
+
+/// The lanes where `−1 ≤ p ≤ 1` (not where `p` is NaN), in one number or in lanes:
+/// within a canonical shape's extent along an axis.
+#[inline(always)]
+pub(crate) fn within_unit<A: Arith>(n: A, p: A::N) -> u32 {
+    n.ge(p, n.splat(-1.0)) & n.ge(n.splat(1.0), p)
+}
+
+/// The nearest hit so far of eight rays in lanes (each lane a ray), as a shape's test
+/// in lanes goes through its candidates in the lone test's order: a candidate is
+/// taken where it lies in `(t_min, limit)`, the limit being the nearest hit so far (at
+/// first `t_max`), so a nearer one replaces it and a tie stays with the earlier, as
+/// the lone test's `t > t_min && t < limit`.
+pub(crate) struct Nearest8<L: Lanes4> {
+    hit: u32,
+    first: [f64; 8],
+    part: [u32; 8],
+    low: [L::V; 2],
+    limit: [L::V; 2],
+}
+
+impl<L: Lanes4> Nearest8<L> {
+    /// None yet, each lane limited to `(t_min, t_max[lane])`.
+    #[inline(always)]
+    pub(crate) fn new(n: Eight<L>, t_min: f64, t_max: &[f64; 8]) -> Nearest8<L> {
+        Nearest8 {
+            hit: 0,
+            first: *t_max,
+            part: [0; 8],
+            low: n.splat(t_min),
+            limit: n.load(t_max),
+        }
+    }
+
+    /// `t` as a hit of part `part` in the lanes of `valid` where it lies within the
+    /// interval.
+    #[inline(always)]
+    pub(crate) fn offer(&mut self, n: Eight<L>, valid: u32, t: [L::V; 2], part: u32) {
+        let take = valid & n.gt(t, self.low) & n.gt(self.limit, t) & 0xff;
+        if take != 0 {
+            let t = n.store(t);
+            for lane in lanes_of(take) {
+                (self.first[lane], self.part[lane]) = (t[lane], part);
+            }
+            self.hit |= take;
+            self.limit = n.load(&self.first);
+        }
+    }
+
+    /// The lanes with a hit, and for those its `λ` and part.
+    #[inline(always)]
+    pub(crate) fn found(self) -> (u32, [f64; 8], [u32; 8]) {
+        (self.hit, self.first, self.part)
+    }
+}
+
 /// The roots `(−b − √disc) / 2a` and `(−b + √disc) / 2a` for a discriminant `disc ≥ 0`,
 /// in one number or in lanes: in that order the nearer and the farther where `a > 0`.
 #[inline(always)]
@@ -477,7 +575,11 @@ pub(crate) fn roots<A: Arith>(n: A, a: A::N, b: A::N, disc: A::N) -> (A::N, A::N
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::arith::Portable;
+    #[cfg(target_arch = "x86_64")]
+    use crate::geometry::bounds::x86::Avx2;
     use crate::geometry::hit::{FaceTest, Probe};
+    use crate::geometry::ray::lanes3;
     use proptest::prelude::*;
 
     /// A probe that asks for every value, so that the tests it watches take no
@@ -591,6 +693,140 @@ mod tests {
             roots_ahead("q", 1.0, 3.0, 2.0, 0.0, &mut Watching),
             [Some(-2.0), Some(-1.0)]
         );
+    }
+
+    /// A coordinate of a ray for the tests in lanes: on the half grid (a cube's faces,
+    /// edges and corners, a cap's rim, the cone's apex and base), anywhere near the
+    /// shapes, at the parallel threshold, or extreme.
+    fn coordinate() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            (-8i32..8).prop_map(|c| c as f64 * 0.5),
+            -3.0f64..3.0,
+            Just(0.0),
+            Just(-0.0),
+            Just(1e-13),
+            Just(-1e-12),
+            Just(1e-12),
+            Just(1e-300),
+            Just(-1e200),
+            Just(f64::INFINITY),
+        ]
+    }
+
+    /// A ray for the tests in lanes: its coordinates of [`coordinate`], or from such an
+    /// origin along one of the cone's generator lines (where its side's quadratic is
+    /// linear: `a = Δx² + Δz² − Δy²/4 = 0` exactly), scaled by a power of two.
+    fn lane_ray() -> BoxedStrategy<Ray> {
+        let origin = || prop::array::uniform3(coordinate()).prop_map(DVec3::from_array);
+        let free = (origin(), prop::array::uniform3(coordinate()))
+            .prop_map(|(o, d)| Ray::new(o, DVec3::from_array(d)));
+        let generator = (
+            origin(),
+            prop::sample::select(vec![
+                DVec3::new(0.5, 1.0, 0.0),
+                DVec3::new(-0.5, -1.0, 0.0),
+                DVec3::new(0.0, 1.0, -0.5),
+                DVec3::new(0.0, -1.0, 0.5),
+            ]),
+            prop::sample::select(vec![1.0, 0.25, 8.0]),
+        )
+            .prop_map(|(o, d, scale)| Ray::new(o, d * scale));
+        // Boxed: eight of the two unboxed kinds' value trees overflowed a test
+        // thread's stack.
+        prop_oneof![3 => free, 1 => generator].boxed()
+    }
+
+    /// `shape`'s test in lanes ([`Shape::intersect_in_lanes8`]) of `rays`, each to its
+    /// own `t_max`, against its lone test ([`Shape::intersect`]) of each ray: each
+    /// lane's hit, `λ` (bit for bit) and part, in SSE2 lanes and, where the processor
+    /// has them, in AVX2 lanes. Fails for a shape without a test in lanes.
+    pub(super) fn lanes_agree(
+        shape: &Shape,
+        rays: &[Ray; 8],
+        t_min: f64,
+        t_max: &[f64; 8],
+    ) -> Result<(), TestCaseError> {
+        agree_in(Eight(Portable), shape, rays, t_min, t_max)?;
+        #[cfg(target_arch = "x86_64")]
+        if let Some(avx2) = Avx2::detect() {
+            avx2.run(|| agree_in(Eight(avx2), shape, rays, t_min, t_max))?;
+        }
+        Ok(())
+    }
+
+    /// [`lanes_agree`] in the lanes of `n`.
+    fn agree_in<L: Lanes4>(
+        n: Eight<L>,
+        shape: &Shape,
+        rays: &[Ray; 8],
+        t_min: f64,
+        t_max: &[f64; 8],
+    ) -> Result<(), TestCaseError> {
+        let lanes = |v: fn(&Ray) -> DVec3| n.load3(&lanes3(rays, v));
+        let carried = || (lanes(|r| r.origin), lanes(|r| r.dir));
+        let Some((hit, first, part)) = shape.intersect_in_lanes8(n, carried, t_min, t_max) else {
+            return Err(TestCaseError::fail(format!(
+                "{} has no test in lanes",
+                shape.name()
+            )));
+        };
+        for (k, r) in rays.iter().enumerate() {
+            let alone = shape.intersect(r, t_min, t_max[k], &mut ());
+            let lane = (hit >> k & 1 == 1).then_some((first[k], part[k]));
+            prop_assert_eq!(
+                lane.map(|(t, i)| (t.to_bits(), i)),
+                alone.map(|(t, i)| (t.to_bits(), i)),
+                "{} lane {} {:?}",
+                shape.name(),
+                k,
+                r
+            );
+        }
+        Ok(())
+    }
+
+    /// The shapes with a test in lanes: those a packet tests in lanes.
+    fn shapes_in_lanes() -> Vec<Shape> {
+        every_shape()
+            .into_iter()
+            .filter(|s| {
+                let n = Eight(Portable);
+                let rays = || (n.splat3(DVec3::ZERO), n.splat3(DVec3::Y));
+                s.intersect_in_lanes8(n, rays, 0.0, &[1.0; 8]).is_some()
+            })
+            .collect()
+    }
+
+    /// Every shape but the plane (which a packet tests from its rays' heights alone)
+    /// and the mesh (which has its own packet test) is tested in lanes; a shape that
+    /// lost its test would leave the property test below without it.
+    #[test]
+    fn the_shapes_a_packet_tests_in_lanes() {
+        let names: Vec<_> = shapes_in_lanes().iter().map(Shape::name).collect();
+        assert_eq!(names, ["sphere", "cube", "disk", "cylinder", "cone"]);
+    }
+
+    proptest! {
+        /// Eight rays at once, each in its lane to its own `t_max`, against every shape
+        /// with a test in lanes: through a cube's faces, edges and corners, a cap's rim,
+        /// the cone's apex, along its generator lines, parallel to faces and caps by the
+        /// threshold, from inside, with coordinates of every scale. Each lane finds the
+        /// part and `λ` its ray finds alone, bit for bit.
+        #[test]
+        fn shapes_in_lanes_find_what_each_ray_finds_alone(
+            rays in prop::array::uniform8(lane_ray()),
+            t_min in prop_oneof![Just(1e-9), Just(0.0), Just(-1.0)],
+            t_max in prop::array::uniform8(prop_oneof![
+                Just(f64::INFINITY),
+                Just(1.5),
+                Just(0.5),
+                0.0f64..6.0,
+            ]),
+        ) {
+            for shape in shapes_in_lanes() {
+                lanes_agree(&shape, &rays, t_min, &t_max)?;
+            }
+        }
     }
 
     fn every_shape() -> Vec<Shape> {

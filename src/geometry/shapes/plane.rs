@@ -3,7 +3,7 @@
 use glam::DVec3;
 
 use super::CanonicalShape;
-use crate::geometry::arith::{Arith, One};
+use crate::geometry::arith::{Arith, Eight, Lanes4, One};
 use crate::geometry::{
     bounds::Aabb,
     hit::{FaceTest, Probe},
@@ -38,8 +38,8 @@ impl CanonicalShape for Plane {
     }
 }
 
-/// `λ = (0 − y₀)/Δy`, skipped when `|Δy| < 1e-12`. `radius2` bounds `x² + z²` (a disk);
-/// `f64::INFINITY` gives the plane.
+/// `λ = (height − y₀)/Δy`, skipped when `|Δy| < 1e-12`. `radius2` bounds `x² + z²` (a
+/// disk); `f64::INFINITY` gives the plane.
 #[inline]
 pub(crate) fn intersect_y0<P: Probe>(
     label: &'static str,
@@ -50,7 +50,7 @@ pub(crate) fn intersect_y0<P: Probe>(
     t_max: f64,
     probe: &mut P,
 ) -> Option<f64> {
-    if ray.dir.y.abs() < PARALLEL_EPSILON {
+    if parallel(One, ray.dir.y) != 0 {
         if probe.active() {
             probe.face(&FaceTest {
                 face: label,
@@ -61,10 +61,9 @@ pub(crate) fn intersect_y0<P: Probe>(
         }
         return None;
     }
-    let t = crossing(One, height, ray.origin.y, ray.dir.y);
-    let x = ray.origin.x + t * ray.dir.x;
-    let z = ray.origin.z + t * ray.dir.z;
-    let within = radius2 == f64::INFINITY || x * x + z * z <= radius2;
+    let (origin, dir) = (ray.origin.to_array(), ray.dir.to_array());
+    let (t, x, z, within) = crossing_point(One, height, radius2, origin, dir);
+    let within = within != 0;
     if probe.active() {
         probe.face(&FaceTest {
             face: label,
@@ -74,6 +73,51 @@ pub(crate) fn intersect_y0<P: Probe>(
         });
     }
     (within && t > t_min && t < t_max).then_some(t)
+}
+
+/// [`intersect_y0`] for eight rays at once, in lanes (`origin` and `dir` in object
+/// space, each lane a ray), nothing recorded and no interval: the lanes that are not
+/// skipped as parallel and cross `y = height` within `radius2`, and every lane's `λ`.
+/// The same operations as alone, so each lane's numbers are its ray's, bit for bit.
+#[inline(always)]
+pub(crate) fn crossings8<L: Lanes4>(
+    n: Eight<L>,
+    height: f64,
+    radius2: f64,
+    origin: [[L::V; 2]; 3],
+    dir: [[L::V; 2]; 3],
+) -> (u32, [L::V; 2]) {
+    let (t, _, _, within) = crossing_point(n, height, radius2, origin, dir);
+    (within & !parallel(n, dir[1]), t)
+}
+
+/// The lanes whose rays a test skips as parallel to the planes `y = const`:
+/// `|Δy| < 1e-12` (a NaN is not skipped).
+#[inline(always)]
+fn parallel<A: Arith>(n: A, dy: A::N) -> u32 {
+    n.gt(n.splat(PARALLEL_EPSILON), n.abs(dy))
+}
+
+/// Where rays cross `y = height`: `λ`, the point's `x` and `z`, and the lanes where
+/// `x² + z² ≤ radius2` (every lane for an infinite `radius2`, the plane's), in one
+/// number or in lanes.
+#[inline(always)]
+fn crossing_point<A: Arith>(
+    n: A,
+    height: f64,
+    radius2: f64,
+    origin: [A::N; 3],
+    dir: [A::N; 3],
+) -> (A::N, A::N, A::N, u32) {
+    let t = crossing(n, n.splat(height), origin[1], dir[1]);
+    let x = n.add(origin[0], n.mul(t, dir[0]));
+    let z = n.add(origin[2], n.mul(t, dir[2]));
+    let within = if radius2 == f64::INFINITY {
+        !0
+    } else {
+        n.ge(n.splat(radius2), n.add(n.mul(x, x), n.mul(z, z)))
+    };
+    (t, x, z, within)
 }
 
 /// Where a ray at height `y0` climbing `dy` per unit `λ` crosses `y = height`, in one
@@ -102,10 +146,9 @@ pub(crate) fn lambdas_from_y<A: Arith>(
     t_min: f64,
     t_max: A::N,
 ) -> (u32, A::N) {
-    let parallel = n.gt(n.splat(PARALLEL_EPSILON), n.abs(dy));
     let t = crossing(n, n.splat(0.0), y0, dy);
     let within = n.gt(t, n.splat(t_min)) & n.gt(t_max, t);
-    (within & !parallel, t)
+    (within & !parallel(n, dy), t)
 }
 
 /// The plane's hit `λ` in `(t_min, t_max)`.

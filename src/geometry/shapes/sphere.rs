@@ -117,7 +117,6 @@ pub fn normal(p: DVec3) -> DVec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::ray::lanes3;
 
     #[test]
     fn lecture_tangent_hit() {
@@ -146,8 +145,10 @@ mod tests {
         assert_eq!(intersect(&miss, 1e-9, f64::INFINITY, &mut ()), None);
     }
 
-    use crate::geometry::shapes::leaves_from_outside;
-    use crate::geometry::shapes::tests::{Watching, any_t_max, any_t_min, off_surface, ray_scale};
+    use crate::geometry::shapes::tests::{
+        Watching, any_t_max, any_t_min, lanes_agree, off_surface, ray_scale,
+    };
+    use crate::geometry::shapes::{Shape, leaves_from_outside};
     use proptest::prelude::*;
 
     /// What the lecture's formula gives, every root computed.
@@ -214,29 +215,6 @@ mod tests {
             })
     }
 
-    /// [`intersect8`] in the lanes of `n` against [`intersect`] of each ray alone.
-    fn lanes_agree<L: Lanes4>(
-        n: Eight<L>,
-        rays: &[Ray; 8],
-        t_min: f64,
-        t_max: &[f64; 8],
-    ) -> Result<(), TestCaseError> {
-        let lanes = |v: fn(&Ray) -> DVec3| n.load3(&lanes3(rays, v));
-        let (hit, first) = intersect8(n, lanes(|r| r.origin), lanes(|r| r.dir), t_min, t_max);
-        for (k, r) in rays.iter().enumerate() {
-            let alone = intersect(r, t_min, t_max[k], &mut ());
-            let lane = (hit >> k & 1 == 1).then_some(first[k]);
-            prop_assert_eq!(
-                lane.map(f64::to_bits),
-                alone.map(f64::to_bits),
-                "lane {} {:?}",
-                k,
-                r
-            );
-        }
-        Ok(())
-    }
-
     proptest! {
         /// Eight rays of every kind at once, each in its lane to its own `t_max`: each
         /// lane finds what its ray finds alone, bit for bit, in SSE2 lanes and, where
@@ -247,11 +225,7 @@ mod tests {
             t_min in any_t_min(),
             t_max in prop::array::uniform8(any_t_max()),
         ) {
-            lanes_agree(Eight(crate::geometry::arith::Portable), &rays, t_min, &t_max)?;
-            #[cfg(target_arch = "x86_64")]
-            if let Some(avx2) = crate::geometry::bounds::x86::Avx2::detect() {
-                avx2.run(|| lanes_agree(Eight(avx2), &rays, t_min, &t_max))?;
-            }
+            lanes_agree(&Shape::Sphere, &rays, t_min, &t_max)?;
         }
     }
 
