@@ -68,15 +68,11 @@ impl Renderer {
             let ray = self.camera.pixel_ray::<C>(u, v);
             return shader.trace_as::<(), C>(&ray, 0, PRIMARY_LAMBDA_MIN, rays, &mut ());
         }
-        let sf = s as f64;
-        let mut sum = DVec3::ZERO;
-        for j in 0..s {
-            for i in 0..s {
-                let ray = self.camera.sample_ray::<C>(u, v, i, j, s);
-                sum += shader.trace_as::<(), C>(&ray, 0, PRIMARY_LAMBDA_MIN, rays, &mut ());
-            }
-        }
-        sum / (sf * sf)
+        let [mean] = mean_of_samples(s, |i, j| {
+            let ray = self.camera.sample_ray::<C>(u, v, i, j, s);
+            [shader.trace_as::<(), C>(&ray, 0, PRIMARY_LAMBDA_MIN, rays, &mut ())]
+        });
+        mean
     }
 
     /// The primary ray of sample `(i, j)` of pixel `(u, v)`: the centre of cell `(i, j)`
@@ -206,6 +202,18 @@ impl Renderer {
         })
     }
 
+    /// The primary rays of sample `(i, j)` (of `s × s`) of packet `p`'s pixels, lane by
+    /// lane: [`Renderer::sample_ray`]'s.
+    #[inline(always)]
+    fn sample_rays8(&self, p: Packet, i: u32, j: u32, s: u32) -> [Ray; 8] {
+        with_constant_rows!(p, |p| {
+            std::array::from_fn(|k| {
+                let (u, v) = p.pixel(k);
+                self.camera.sample_ray::<Lecture>(u, v, i, j, s)
+            })
+        })
+    }
+
     /// Appends [`Renderer::pixel_hit`] of packet `p`'s pixels, their rays traced as a
     /// packet (the same eight hits, bit for bit), to `rows`: those of its first row to
     /// the first, of its second (if it has two) to the second. Each record is made in
@@ -248,10 +256,13 @@ impl Renderer {
         Shader::new(&self.scene, &self.world)
     }
 
-    /// [`Renderer::pixel_colour`] of packet `p`'s pixels (lane by lane) in a scene of
-    /// one sample a pixel, their primary rays traced as a packet and shaded by `shader`
-    /// (of [`Renderer::shader`]): the same eight colours, bit for bit. `None` for a
-    /// scene of several samples a pixel. `bounded` is as for [`Renderer::pixel_hits8`].
+    /// [`Renderer::pixel_colour`] of packet `p`'s pixels (lane by lane), their primary
+    /// rays traced as a packet and shaded by `shader` (of [`Renderer::shader`]): the
+    /// same eight colours, bit for bit, and the same rays counted. In a scene of
+    /// several samples a pixel, the eight pixels' sample `(i, j)` is one packet, and
+    /// each pixel's samples are added in the order a pixel alone adds them
+    /// ([`mean_of_samples`]). `bounded` is as for [`Renderer::pixel_hits8`] (a block's
+    /// cone holds its samples' rays too).
     #[inline]
     pub fn pixel_colours8(
         &self,
@@ -259,16 +270,39 @@ impl Renderer {
         p: Packet,
         bounded: bool,
         rays: &mut RayCount,
-    ) -> Option<[DVec3; 8]> {
-        if self.scene.samples != 1 {
-            return None;
+    ) -> [DVec3; 8] {
+        let mut trace = |primary: [Ray; 8]| {
+            let hits =
+                self.world
+                    .closest8(&primary, 0xff, PRIMARY_LAMBDA_MIN, f64::INFINITY, bounded);
+            shader.shade8(&primary, hits, rays)
+        };
+        match self.scene.samples {
+            1 => trace(self.pixel_rays8(p)),
+            s => mean_of_samples(s, |i, j| trace(self.sample_rays8(p, i, j, s))),
         }
-        let primary = self.pixel_rays8(p);
-        let hits = self
-            .world
-            .closest8(&primary, 0xff, PRIMARY_LAMBDA_MIN, f64::INFINITY, bounded);
-        Some(shader.shade8(&primary, hits, rays))
     }
+}
+
+/// The mean of `N` pixels' colours over their `s × s` samples, each sample's from
+/// `colour(i, j)` (cell `i` of row `j`): the rows in order, each row's cells in order,
+/// added to zero, then divided by `s²`. One order for every caller, so a pixel traced
+/// alone and in a packet has the same bits.
+#[inline(always)]
+fn mean_of_samples<const N: usize>(
+    s: u32,
+    mut colour: impl FnMut(u32, u32) -> [DVec3; N],
+) -> [DVec3; N] {
+    let mut sum = [DVec3::ZERO; N];
+    for j in 0..s {
+        for i in 0..s {
+            for (sum, c) in sum.iter_mut().zip(colour(i, j)) {
+                *sum += c;
+            }
+        }
+    }
+    let sf = s as f64;
+    sum.map(|c| c / (sf * sf))
 }
 
 /// Appends to `out` the pixels of one or two rows as [`Kernel::rows`] asks, a packet
@@ -346,9 +380,7 @@ impl Kernel for ColourKernel<'_> {
         let bounded = self.0.may_meet_objects(block_of(rows));
         rows_in_packets(self, rows, rays, out, |p, rays, out| {
             let mut n = RayCount(0);
-            let Some(c) = self.0.pixel_colours8(&shader, p, bounded, &mut n) else {
-                return false;
-            };
+            let c = self.0.pixel_colours8(&shader, p, bounded, &mut n);
             *rays += n.0;
             let q = quantise8(&c, gamma);
             put_rows(p, out, |k, row| row.push(q[k]));
@@ -378,9 +410,7 @@ impl Kernel for LinearKernel<'_> {
         let bounded = self.0.may_meet_objects(block_of(rows));
         rows_in_packets(self, rows, rays, out, |p, rays, out| {
             let mut n = RayCount(0);
-            let Some(c) = self.0.pixel_colours8(&shader, p, bounded, &mut n) else {
-                return false;
-            };
+            let c = self.0.pixel_colours8(&shader, p, bounded, &mut n);
             *rays += n.0;
             put_rows(p, out, |k, row| row.push(c[k].as_vec3().to_array()));
             true

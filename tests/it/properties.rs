@@ -182,6 +182,13 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
             .as_array_mut()
             .unwrap()
             .push(height_field(16));
+        // Some take several samples a pixel: a packet a sample, and each pixel's mean
+        // the one it has alone.
+        doc["image"]["samples"] = json!(match seed {
+            32 | 35 => 2,
+            34 => 3,
+            _ => 1,
+        });
         let r = renderer(&doc);
         // Shadow rays go as packets through the height field alone, one at a time
         // through a tree of objects.
@@ -242,9 +249,7 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                         }
                     }
                     let mut n = raytile::render::RayCount(0);
-                    let colours = r
-                        .pixel_colours8(&shader, p, bounded, &mut n)
-                        .expect("one sample a pixel");
+                    let colours = r.pixel_colours8(&shader, p, bounded, &mut n);
                     let mut m = raytile::render::RayCount(0);
                     let one: Vec<_> = pixels
                         .iter()
@@ -381,9 +386,9 @@ fn moving_camera_and_objects_together_changes_nothing() {
 #[test]
 fn output_is_identical_whatever_the_tiles_and_threads() {
     let dir = tempfile::tempdir().unwrap();
-    // One sample a pixel traces primary rays in packets of eight, two samples one by
-    // one; a tile 7 wide traces each row one pixel at a time, one 13 wide ends each row
-    // with five pixels traced alone.
+    // Primary rays go in packets of eight (with two samples a pixel, one packet a
+    // sample); a tile 7 wide traces each row one pixel at a time, one 13 wide ends each
+    // row with five pixels traced alone.
     for samples in [1, 2] {
         let mut doc = random_scene(21, 40, 120);
         doc["image"]["samples"] = json!(samples);
