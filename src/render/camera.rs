@@ -133,9 +133,7 @@ impl PrimaryRays {
     /// `s × s` cells, under conventions `C`: through the cell's centre in the lecture's.
     #[inline]
     pub fn sample_ray<C: Conventions>(&self, u: u32, v: u32, i: u32, j: u32, s: u32) -> Ray {
-        let sf = s as f64;
-        let x = u as f64 + (i as f64 + C::PIXEL_OFFSET) / sf;
-        let y = v as f64 + (j as f64 + C::PIXEL_OFFSET) / sf;
+        let [x, y] = sample_point::<C>(u, v, i, j, s);
         self.through(x, y)
     }
 
@@ -193,6 +191,17 @@ impl PrimaryRays {
         };
         Some([a, b])
     }
+}
+
+/// The image point, in pixel units, of sample `(i, j)` of pixel `(u, v)` cut into
+/// `s × s` cells, under conventions `C`: the cell's centre in the lecture's.
+#[inline]
+pub fn sample_point<C: Conventions>(u: u32, v: u32, i: u32, j: u32, s: u32) -> [f64; 2] {
+    let sf = s as f64;
+    [
+        u as f64 + (i as f64 + C::PIXEL_OFFSET) / sf,
+        v as f64 + (j as f64 + C::PIXEL_OFFSET) / sf,
+    ]
 }
 
 #[cfg(test)]

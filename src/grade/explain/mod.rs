@@ -32,8 +32,9 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::ray::PRIMARY_LAMBDA_MIN;
+use crate::render::camera::sample_point;
 use crate::render::shade::Shader;
-use crate::render::{RayCount, Renderer, quantise};
+use crate::render::{Lecture, RayCount, Renderer, quantise};
 pub use model::{
     Blocker, DirectionTerms, Explanation, FaceCheck, FinalColour, HitInfo, ImageInfo, LightInfo,
     MaterialInfo, ObjectTest, PrimaryRay, Quadratic, Ray4, RayNode, Role, Root, Sample, Secondary,
@@ -166,11 +167,9 @@ pub fn explain(r: &Renderer, u: u32, v: u32, opts: &ExplainOptions) -> Explanati
             s * s
         ));
         // The same points, in the same order, as `Renderer::pixel_colour` averages them.
-        let sf = s as f64;
         for j in 0..s {
             for i in 0..s {
-                let px = u as f64 + (i as f64 + 0.5) / sf;
-                let py = v as f64 + (j as f64 + 0.5) / sf;
+                let [px, py] = sample_point::<Lecture>(u, v, i, j, s);
                 let c = shader.trace(
                     &r.camera.through(px, py),
                     0,
