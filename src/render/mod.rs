@@ -261,7 +261,7 @@ impl Renderer {
     /// same eight colours, bit for bit, and the same rays counted. In a scene of
     /// several samples a pixel, the eight pixels' sample `(i, j)` is one packet, and
     /// each pixel's samples are added in the order a pixel alone adds them
-    /// ([`mean_of_samples`]). `bounded` is as for [`Renderer::pixel_hits8`] (a block's
+    /// (`mean_of_samples`). `bounded` is as for [`Renderer::pixel_hits8`] (a block's
     /// cone holds its samples' rays too).
     #[inline]
     pub fn pixel_colours8(
