@@ -40,8 +40,13 @@ impl CanonicalShape for Disk {
 /// The disk's hit `λ` in `(t_min, t_max)`; the rim counts.
 #[inline]
 pub fn intersect<P: Probe>(ray: &Ray, t_min: f64, t_max: f64, probe: &mut P) -> Option<f64> {
-    super::plane::intersect_y0("disk", ray, 0.0, 1.0, t_min, t_max, probe)
+    super::plane::intersect_y0("disk", ray, HEIGHT, RADIUS2, t_min, t_max, probe)
 }
+
+/// The disk's plane, `y = 0`.
+const HEIGHT: f64 = 0.0;
+/// The disk's squared radius.
+const RADIUS2: f64 = 1.0;
 
 /// [`intersect`] for eight rays at once, in lanes (`origin` and `dir` in object space,
 /// each lane a ray), nothing recorded: the bit set of the lanes with a hit in
@@ -55,7 +60,7 @@ pub(crate) fn intersect8<L: Lanes4>(
     t_max: &[f64; 8],
 ) -> (u32, [f64; 8], [u32; 8]) {
     let mut nearest = Nearest8::new(n, t_min, t_max);
-    let (across, t) = super::plane::crossings8(n, 0.0, 1.0, origin, dir);
+    let (across, t) = super::plane::crossings8(n, HEIGHT, RADIUS2, origin, dir);
     nearest.offer(n, across, t, 0);
     nearest.found()
 }
