@@ -4,9 +4,9 @@
 use glam::DVec3;
 
 use super::{
-    CanonicalShape, Nearest8, discriminant, on_side,
+    CanonicalShape, Nearest8, offer_side_roots8, on_side,
     plane::{crossings8, intersect_y0},
-    roots, solve_quadratic,
+    solve_quadratic,
 };
 use crate::geometry::arith::{Arith, Eight, Lanes4, One};
 use crate::geometry::{bounds::Aabb, hit::Probe, ray::Ray};
@@ -80,7 +80,7 @@ const BASE: f64 = -1.0;
 /// each lane a ray), nothing recorded: the bit set of the lanes that find a part in
 /// `(t_min, t_max[lane])`, and for those its `λ` and index. The side's roots and the
 /// base's crossing are the lone ray's numbers (the same operations), kept by the same
-/// rule ([`Nearest8`]): the nearest valid one, a tie to the side. A linear side has
+/// rule ([`Nearest8`], [`offer_side_roots8`]): the nearest valid one, a tie to the side. A linear side has
 /// one root where `a = 0`, else the quadratic has two, which the lone ray sorts (`a`
 /// may be negative); here the nearer valid root is kept whichever comes first, and
 /// where one is NaN, the lone ray's `min` and `max` both give the other, which is the
@@ -108,14 +108,7 @@ pub(crate) fn intersect8<L: Lanes4>(
             0,
         );
     }
-    let disc = discriminant(n, a, b, c);
-    let real = n.ge(disc, zero) & n.ne(a, zero);
-    if real != 0 {
-        let (r0, r1) = roots(n, a, b, disc);
-        for t in [r0, r1] {
-            nearest.offer(n, real & on_side(n, origin[1], dir[1], t), t, 0);
-        }
-    }
+    offer_side_roots8(n, &mut nearest, a, b, c, origin[1], dir[1]);
     let (across, t) = crossings8(n, BASE, 1.0, origin, dir);
     nearest.offer(n, across, t, 1);
     nearest.found()

@@ -5,9 +5,9 @@
 use glam::DVec3;
 
 use super::{
-    CanonicalShape, Nearest8, discriminant, on_side,
+    CanonicalShape, Nearest8, offer_side_roots8, on_side,
     plane::{crossings8, intersect_y0},
-    roots, roots_ahead,
+    roots_ahead,
 };
 use crate::geometry::arith::{Arith, Eight, Lanes4, One};
 use crate::geometry::{bounds::Aabb, hit::Probe, ray::Ray};
@@ -79,12 +79,11 @@ const CAPS: [(&str, f64); 2] = [(PARTS[1], 1.0), (PARTS[2], -1.0)];
 /// [`intersect`] for eight rays at once, in lanes (`origin` and `dir` in object space,
 /// each lane a ray), nothing recorded: the bit set of the lanes that find a part in
 /// `(t_min, t_max[lane])`, and for those its `λ` and index. The side's roots and the
-/// caps' crossings are the lone ray's numbers (the same operations), taken in the same
-/// order by the same rule ([`Nearest8`]): since `a = Δx² + Δz² ≥ 0`, the nearer root
-/// comes first, as alone (where one root is NaN, the lone ray's `min` and `max` both
-/// give the other, which is the one valid here). Roots the lone ray skips as behind it
-/// ([`roots_ahead`]) are computed here, and refused by the interval as they would be
-/// there.
+/// caps' crossings are the lone ray's numbers (the same operations), kept by the same
+/// rule ([`Nearest8`], [`offer_side_roots8`]; where one root is NaN, the lone ray's
+/// `min` and `max` both give the other, which is the one valid here). Roots the lone
+/// ray skips as behind it ([`roots_ahead`]) are computed here, and refused by the
+/// interval as they would be there.
 #[inline(always)]
 pub(crate) fn intersect8<L: Lanes4>(
     n: Eight<L>,
@@ -95,15 +94,7 @@ pub(crate) fn intersect8<L: Lanes4>(
 ) -> (u32, [f64; 8], [u32; 8]) {
     let mut nearest = Nearest8::new(n, t_min, t_max);
     let (a, b, c) = side_coefficients(n, origin, dir);
-    let disc = discriminant(n, a, b, c);
-    let zero = n.splat(0.0);
-    let real = n.ge(disc, zero) & n.ne(a, zero);
-    if real != 0 {
-        let (near, far) = roots(n, a, b, disc);
-        for t in [near, far] {
-            nearest.offer(n, real & on_side(n, origin[1], dir[1], t), t, 0);
-        }
-    }
+    offer_side_roots8(n, &mut nearest, a, b, c, origin[1], dir[1]);
     for (part, (_, h)) in CAPS.into_iter().enumerate() {
         let (across, t) = crossings8(n, h, 1.0, origin, dir);
         nearest.offer(n, across, t, part as u32 + 1);

@@ -506,6 +506,32 @@ pub(crate) fn on_side<A: Arith>(n: A, y0: A::N, dy: A::N, t: A::N) -> u32 {
     within_unit(n, n.add(y0, n.mul(t, dy)))
 }
 
+/// Offers `nearest` the roots of a side's quadratic `a λ² + b λ + c = 0` (a cylinder's,
+/// a cone's) as part 0, in lanes: where it has real roots as [`solve_quadratic`] finds
+/// them (`disc ≥ 0`, `a ≠ 0`) and each root's point lies within the side's height
+/// ([`on_side`], from the rays' `y₀` and `Δy`). Both roots are offered: the nearer
+/// valid one is kept whichever comes first, as the lone test's sorted loop keeps it.
+#[inline(always)]
+pub(crate) fn offer_side_roots8<L: Lanes4>(
+    n: Eight<L>,
+    nearest: &mut Nearest8<L>,
+    a: [L::V; 2],
+    b: [L::V; 2],
+    c: [L::V; 2],
+    y0: [L::V; 2],
+    dy: [L::V; 2],
+) {
+    let disc = discriminant(n, a, b, c);
+    let zero = n.splat(0.0);
+    let real = n.ge(disc, zero) & n.ne(a, zero);
+    if real != 0 {
+        let (r0, r1) = roots(n, a, b, disc);
+        for t in [r0, r1] {
+            nearest.offer(n, real & on_side(n, y0, dy, t), t, 0);
+        }
+    }
+}
+
 /// The lanes where `−1 ≤ p ≤ 1` (not where `p` is NaN), in one number or in lanes:
 /// within a canonical shape's extent along an axis.
 #[inline(always)]
