@@ -640,12 +640,18 @@ impl Bvh {
         // The limits as the box tests read them (the root's test too), rounded again
         // only when a leaf may have lowered them, not at every node.
         let mut limits = lanes8(t_max);
-        let entered = {
+        // The whole tree's box is tested only where the root is a leaf, whose box is
+        // then the only test before its primitives. An inner root's two boxes are
+        // tested next, at about the cost of the root's one, and a ray that misses the
+        // root's box misses theirs, which it holds (each rounded outward alike): tested
+        // first, it cost every packet that enters the tree a test more (hit data
+        // instructions −1.3 % on spheres-1k and −1.1 % on cubes-10k without it).
+        let mut mask = active;
+        if self.root & LEAF != 0 {
             let [lo, hi]: [f32x4; 2] = bytemuck::cast(limits);
             let enter = |r: &SlabRay4, t| r.enter(&self.root32, f32x4::splat(t_min), t).0;
-            enter(&rays[0], lo) | enter(&rays[1], hi) << 4
-        };
-        let mut mask = active & entered;
+            mask &= enter(&rays[0], lo) | enter(&rays[1], hi) << 4;
+        }
         if mask == 0 {
             return;
         }
@@ -773,11 +779,13 @@ impl Bvh {
         t_max: f64,
         mut leaf: F,
     ) -> bool {
-        // Rounded to the nearest `f32`, as a packet's limits are (`lanes`).
+        // Rounded to the nearest `f32`, as a packet's limits are (`lanes`). No test of
+        // the whole tree's box first: the wide root is an inner node, its four boxes lie
+        // inside it (each rounded outward alike) and take one pass of four lanes, as the
+        // root's box alone does, so a ray that misses it is turned away at the same
+        // cost, and one that enters (every shadow ray starting inside the tree's box)
+        // saves a pass.
         let (t_min, t_max) = (f32x4::splat(t_min as f32), f32x4::splat(t_max as f32));
-        if ray.enter(&self.root32, t_min, t_max).0 == 0 {
-            return false;
-        }
         // A node pushes at most three children, and a path has no more wide nodes than
         // binary ones.
         let mut stack: ArrayVec<u32, { 3 * STACK_SIZE }> = ArrayVec::new();
