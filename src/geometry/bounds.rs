@@ -403,17 +403,26 @@ impl SlabRay4 {
     // call to `memcpy` after each call.
     #[inline(always)]
     pub fn new(rays: &[Ray; 4]) -> Option<SlabRay4> {
+        let first = rays[0].origin;
+        SlabRay4::new_from(rays, rays.iter().all(|r| r.origin == first))
+    }
+
+    /// [`SlabRay4::new`], `shared` saying that the caller knows every ray to start at
+    /// the first one's origin (a camera's rays), so that the origins are not compared:
+    /// rounded once, as they are for rays found to share it. False takes each ray's
+    /// own origin, which gives the same numbers for rays that do share one.
+    #[inline(always)]
+    pub fn new_from(rays: &[Ray; 4], shared: bool) -> Option<SlabRay4> {
         let mut d = [[0f32; 4]; 3];
         for (lane, r) in rays.iter().enumerate() {
             for (a, axis) in d.iter_mut().enumerate() {
                 axis[lane] = r.dir[a] as f32;
             }
         }
-        let first = rays[0].origin;
         let d = d.map(f32x4::new);
-        if rays.iter().all(|r| r.origin == first) {
+        if shared {
             // Primary rays share the camera: its bounds once.
-            return SlabRay4::shared(d, d.map(|d| f32x4::splat(1.0) / d), first);
+            return SlabRay4::shared(d, d.map(|d| f32x4::splat(1.0) / d), rays[0].origin);
         }
         if !fits(&d) {
             return None;
@@ -448,6 +457,16 @@ impl SlabRay4 {
     pub fn pair(rays: &[Ray; 8]) -> Option<[SlabRay4; 2]> {
         let (lo, hi) = halves(rays);
         Some([SlabRay4::new(lo)?, SlabRay4::new(hi)?])
+    }
+
+    /// [`SlabRay4::pair`] with [`SlabRay4::new_from`]'s `shared`.
+    #[inline(always)]
+    pub fn pair_from(rays: &[Ray; 8], shared: bool) -> Option<[SlabRay4; 2]> {
+        let (lo, hi) = halves(rays);
+        Some([
+            SlabRay4::new_from(lo, shared)?,
+            SlabRay4::new_from(hi, shared)?,
+        ])
     }
 
     /// One ray in all four lanes, as [`SlabRay4::new`] makes four copies of it: for

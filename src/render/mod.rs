@@ -101,7 +101,7 @@ impl Renderer {
     }
 
     /// The hit data of primary ray `ray`'s first hit `h` under conventions `C`, written
-    /// into `slot` by the world ([`World::put_surface`]) and, unless `C` takes it as it
+    /// into `slot` by the world ([`World::put_view_surface`]) and, unless `C` takes it as it
     /// is, changed there.
     ///
     /// A record made by a call and then copied into its row was loaded, in part, as a
@@ -111,7 +111,7 @@ impl Renderer {
     /// leaves it.
     #[inline(always)]
     fn put_hit_record<C: Conventions>(&self, ray: &Ray, h: &Hit, slot: &mut Option<Surface>) {
-        self.world.put_surface(ray, h, slot);
+        self.world.put_view_surface(ray, h, slot);
         if !shade::hit_as_found::<C>()
             && let Some(s) = slot
         {
@@ -223,9 +223,14 @@ impl Renderer {
     pub fn pixel_hits8(&self, p: Packet, bounded: bool, rows: [&mut Vec<Option<Surface>>; 2]) {
         with_constant_rows!(p, |p| {
             let rays = self.pixel_rays8(p);
-            let hits = self
-                .world
-                .closest8(&rays, 0xff, PRIMARY_LAMBDA_MIN, f64::INFINITY, bounded);
+            let hits = self.world.closest8(
+                &rays,
+                true,
+                0xff,
+                PRIMARY_LAMBDA_MIN,
+                f64::INFINITY,
+                bounded,
+            );
             put_rows(p, rows, |k, row| match &hits[k] {
                 None => row.push(None),
                 Some(h) => {
@@ -303,9 +308,14 @@ impl Renderer {
         bounded: bool,
         rays: &mut RayCount,
     ) -> [DVec3; 8] {
-        let hits = self
-            .world
-            .closest8(primary, 0xff, PRIMARY_LAMBDA_MIN, f64::INFINITY, bounded);
+        let hits = self.world.closest8(
+            primary,
+            true,
+            0xff,
+            PRIMARY_LAMBDA_MIN,
+            f64::INFINITY,
+            bounded,
+        );
         shader.shade8(primary, hits, rays)
     }
 }

@@ -283,7 +283,9 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                     DVec3::from(rng.v3(-1.0, 1.0)),
                 )
             });
-            let eight = r.world.closest8(&rays, 0xff, 1e-9, f64::INFINITY, true);
+            let eight = r
+                .world
+                .closest8(&rays, false, 0xff, 1e-9, f64::INFINITY, true);
             for (k, ray) in rays.iter().enumerate() {
                 assert_eq!(
                     eight[k],
@@ -294,11 +296,30 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                     r.world.closest_brute_force(ray, 1e-9, 2.0).is_some()
                 );
             }
+            // The same directions from the viewpoint: told so (each object's rays from
+            // the viewpoint's origin in its space) or not (each ray's origin carried),
+            // the same hits.
+            let from_view = rays.map(|ray| Ray::new(r.camera.origin(), ray.dir));
+            let told = r
+                .world
+                .closest8(&from_view, true, 0xff, 1e-9, f64::INFINITY, true);
+            let untold = r
+                .world
+                .closest8(&from_view, false, 0xff, 1e-9, f64::INFINITY, true);
+            assert_eq!(told, untold, "seed {seed}");
+            for (k, ray) in from_view.iter().enumerate() {
+                assert_eq!(
+                    told[k],
+                    r.world.closest_brute_force(ray, 1e-9, f64::INFINITY)
+                );
+            }
             // A ray along an axis plane is too much for the packet's f32 test: the eight
             // are traced one at a time, with the same answers.
             let mut flat = rays;
             flat[2 + 4 * (rng.0 as usize % 2)].dir.y = 0.0;
-            let eight = r.world.closest8(&flat, 0xff, 1e-9, f64::INFINITY, true);
+            let eight = r
+                .world
+                .closest8(&flat, false, 0xff, 1e-9, f64::INFINITY, true);
             for (k, ray) in flat.iter().enumerate() {
                 assert_eq!(
                     eight[k],
@@ -319,7 +340,9 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                 }
                 // And as secondary rays of some pixels: the lanes asked find what they
                 // find alone, the others nothing.
-                let found = r.world.closest8(&packet, active, 1e-9, f64::INFINITY, true);
+                let found = r
+                    .world
+                    .closest8(&packet, false, active, 1e-9, f64::INFINITY, true);
                 for (k, ray) in packet.iter().enumerate() {
                     let alone = (active >> k & 1 == 1)
                         .then(|| r.world.closest(ray, 1e-9, f64::INFINITY))

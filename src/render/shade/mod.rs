@@ -410,7 +410,7 @@ impl Shader<'_> {
         rays: &mut RayCount,
         probe: &mut P,
     ) -> DVec3 {
-        let (at, ambient) = self.hit_point_as::<C>(ray, &hit);
+        let (at, ambient) = self.hit_point_as::<C>(ray, &hit, false);
         probe.surface(&hit, &at.s, at.n, at.m, ambient);
         let c = self.add_lights_as::<P, C>(ray, depth, &at, ambient, rays, probe);
         self.add_secondaries_as::<P, C>(ray, depth, &at, c, rays, probe)
@@ -477,7 +477,7 @@ impl Shader<'_> {
         let mut at: [Option<HitPoint>; 8] = [const { None }; 8];
         for (k, hit) in hits.iter().enumerate() {
             if let Some(hit) = hit {
-                let (point, ambient) = self.hit_point_as::<Lecture>(&primary[k], hit);
+                let (point, ambient) = self.hit_point_as::<Lecture>(&primary[k], hit, true);
                 (at[k], c[k]) = (Some(point), ambient);
             }
         }
@@ -534,6 +534,7 @@ impl Shader<'_> {
             }
             let hits = (self.world).closest8(
                 &sent.rays,
+                false,
                 sent.lanes,
                 SECONDARY_LAMBDA_MIN,
                 f64::INFINITY,
@@ -548,11 +549,22 @@ impl Shader<'_> {
     }
 
     /// What shading a hit of `ray` starts from: its surface record under conventions
-    /// `C`, the normal facing the ray, its material; and the ambient term.
+    /// `C`, the normal facing the ray, its material; and the ambient term. `view` says
+    /// that the caller knows `ray` to be a primary ray ([`World::view_surface`]).
     #[inline(always)]
-    fn hit_point_as<C: Conventions>(&self, ray: &Ray, hit: &Hit) -> (HitPoint<'_>, DVec3) {
+    fn hit_point_as<C: Conventions>(
+        &self,
+        ray: &Ray,
+        hit: &Hit,
+        view: bool,
+    ) -> (HitPoint<'_>, DVec3) {
         let object = &self.scene.objects[hit.object as usize];
-        let s = conventional_surface::<C>(&object.transform, self.world.surface(ray, hit));
+        let found = if view {
+            self.world.view_surface(ray, hit)
+        } else {
+            self.world.surface(ray, hit)
+        };
+        let s = conventional_surface::<C>(&object.transform, found);
         let m = &self.scene.materials[object.material as usize];
         let n = facing_normal(&s, ray.dir);
         let ambient = if C::AMBIENT {
