@@ -15,12 +15,33 @@ use super::auth::{ADMIN, Server, create_token, serve};
 use super::support::raytile;
 use super::support_server;
 
-/// A loopback port that nothing listens on.
-fn closed_port() -> u16 {
-    let l = TcpListener::bind("127.0.0.1:0").expect("a free port");
-    let port = l.local_addr().expect("an address").port();
-    drop(l);
-    port
+/// A loopback port that nothing listens on, kept bound (never listening) while the
+/// guard lives: a connection to it is refused, and no other test's server can take it
+/// meanwhile. (Freed at once, as it once was, a server started by a test running
+/// beside this one took it now and then, and the service seemed up.)
+struct ClosedPort {
+    _held: socket2::Socket,
+    port: u16,
+}
+
+impl ClosedPort {
+    fn url(&self) -> String {
+        format!("http://127.0.0.1:{}", self.port)
+    }
+}
+
+fn closed_port() -> ClosedPort {
+    use socket2::{Domain, Socket, Type};
+    let held = Socket::new(Domain::IPV4, Type::STREAM, None).expect("a socket");
+    let loopback = std::net::SocketAddr::from(([127, 0, 0, 1], 0));
+    held.bind(&loopback.into()).expect("a free port");
+    let port = held
+        .local_addr()
+        .ok()
+        .and_then(|a| a.as_socket())
+        .expect("an address")
+        .port();
+    ClosedPort { _held: held, port }
 }
 
 /// `raytile submit` with these arguments: exit code, standard error.
@@ -57,7 +78,8 @@ const UNREACHABLE: &str = "the grading service could not be reached, resubmit";
 fn an_unreachable_service_still_gets_a_results_file_in_every_form() {
     let dir = tempfile::tempdir().unwrap();
     let sub = some_files(dir.path());
-    let server = format!("http://127.0.0.1:{}", closed_port());
+    let closed = closed_port();
+    let server = closed.url();
     for form in ["gradescope", "prairielearn", "json", "text"] {
         let out = dir.path().join(format!("results/{form}.json"));
         let t0 = Instant::now();
@@ -994,7 +1016,8 @@ fn the_shipped_gradescope_autograder_grades_a_submission_and_survives_a_dead_ser
     assert_eq!(listed[0].student, "ada@example.edu");
 
     // The service down: still a results file, score 0, "resubmit".
-    env_file(&format!("http://127.0.0.1:{}", closed_port()));
+    let closed = closed_port();
+    env_file(&closed.url());
     let quick = quick_script(c.dir.path(), "gradescope/run_autograder");
     let (code, stderr) = run_script(&quick, "AUTOGRADER_ROOT", &root, &[]);
     assert_eq!(code, Some(1), "{stderr}");
@@ -1051,7 +1074,8 @@ fn the_shipped_prairielearn_grader_grades_a_submission_and_survives_a_dead_servi
         listed[0].student
     );
 
-    let dead = format!("http://127.0.0.1:{}", closed_port());
+    let closed = closed_port();
+    let dead = closed.url();
     let quick = quick_script(c.dir.path(), "prairielearn/grader.sh");
     let settings = [settings[1], settings[2], ("RAYTILE_SERVER", dead.as_str())];
     let (code, stderr) = run_script(&quick, "PL_GRADE_ROOT", &root, &settings);
