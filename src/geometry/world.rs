@@ -412,7 +412,6 @@ impl World {
     /// than found by comparing every ray's origin with the viewpoint: with the
     /// records' comparisons ([`World::view_surface`]), they were 6 % of `spheres-1k`'s
     /// hit data instructions and 8 % of `classic`'s.
-    #[allow(clippy::too_many_arguments)]
     pub fn closest8(
         &self,
         rays: &[Ray; 8],
