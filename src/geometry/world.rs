@@ -439,13 +439,12 @@ impl World {
             },
         };
         debug_assert!(!view || rays.iter().all(|r| self.is_viewpoint(r.origin)));
-        let from_view = [view; 8];
         let mut best = Best8::new(t_max);
         let mut limit = [t_max; 8];
         if !self.unbounded.is_empty() {
             with_avx2(
                 #[inline(always)]
-                || self.unbounded8(rays, from_view, t_min, active, &mut limit, &mut best),
+                || self.unbounded8(rays, view, t_min, active, &mut limit, &mut best),
             );
         }
         if let Some(i) = lone {
@@ -453,7 +452,7 @@ impl World {
             // are, so that a sphere's lanes (`consider8`) inline.
             with_avx2(
                 #[inline(always)]
-                || self.consider8(i, rays, from_view, t_min, active, &mut limit, &mut best),
+                || self.consider8(i, rays, view, t_min, active, &mut limit, &mut best),
             );
         }
         if let Some(slab) = slab {
@@ -467,7 +466,7 @@ impl World {
                 #[inline(always)]
                 |objects, active, limit| {
                     for &i in objects {
-                        self.consider8(i, rays, from_view, t_min, active, limit, &mut best);
+                        self.consider8(i, rays, view, t_min, active, limit, &mut best);
                     }
                 },
             );
@@ -475,20 +474,19 @@ impl World {
         best.hit
     }
 
-    /// The unbounded objects for the rays of `active` (of [`World::closest8`]), each
-    /// taken by the rule of `closest_probed`: a plane tests the eight in lanes
-    /// ([`Solid::plane8`]), anything else one ray at a time.
+    /// The unbounded objects for the rays of `active` (of [`World::closest8`], `view`
+    /// as there), each taken by the rule of `closest_probed`: a plane tests the eight
+    /// in lanes ([`Solid::plane8`]), anything else one ray at a time.
     #[inline(always)]
     fn unbounded8(
         &self,
         rays: &[Ray; 8],
-        from_view: [bool; 8],
+        view: bool,
         t_min: f64,
         active: u32,
         limit: &mut [f64; 8],
         best: &mut Best8,
     ) {
-        let view = from_view == [true; 8];
         for &i in &self.unbounded {
             let s = &self.solids[i as usize];
             if let Shape::Plane = s.shape {
@@ -501,14 +499,15 @@ impl World {
             }
             for lane in lanes_of(active) {
                 let (r, below) = (&rays[lane], best.below[lane]);
-                let found = self.intersect_unbounded(i, r, from_view[lane], t_min, below, &mut ());
+                let found = self.intersect_unbounded(i, r, view, t_min, below, &mut ());
                 best.keep(lane, i, found, &mut limit[lane]);
             }
         }
     }
 
-    /// Object `i` for the rays of `active` (of [`World::closest8`]), each taken by the
-    /// rule of `closest_probed`, so the same hits. `next_up` lets an equal λ through.
+    /// Object `i` for the rays of `active` (of [`World::closest8`], `view` as there),
+    /// each taken by the rule of `closest_probed`, so the same hits. `next_up` lets an
+    /// equal λ through.
     /// Spheres, cubes, cylinders, cones and disks take the eight rays in lanes
     /// ([`Solid::intersect_in_lanes8`]), other shapes one at a time unless they have a
     /// packet test of their own.
@@ -518,7 +517,7 @@ impl World {
         &self,
         i: u32,
         rays: &[Ray; 8],
-        from_view: [bool; 8],
+        view: bool,
         t_min: f64,
         active: u32,
         limit: &mut [f64; 8],
@@ -526,7 +525,6 @@ impl World {
     ) {
         let s = &self.solids[i as usize];
         let below = &best.below;
-        let view = from_view == [true; 8];
         let in_lanes = in_lanes!(n => s.intersect_in_lanes8(n, rays, view, t_min, below));
         if let Some((hit, lambda, part)) = in_lanes {
             for lane in lanes_of(active & hit) {
@@ -536,7 +534,7 @@ impl World {
         }
         let mut object = *rays;
         for lane in lanes_of(active) {
-            object[lane] = s.object_ray(&rays[lane], from_view[lane]);
+            object[lane] = s.object_ray(&rays[lane], view);
         }
         let found = s.shape.intersect8(&object, active, t_min, *below);
         for lane in lanes_of(active) {
@@ -634,13 +632,13 @@ impl World {
                 self.occluded(&rays[lane], t_min, t_max[lane])
             });
         };
-        // Off a surface, as a lone shadow ray's (`World::occluded_hinted`).
-        let from_view = [false; 8];
+        // Off a surface, as a lone shadow ray's (`World::occluded_hinted`): origins
+        // carried, not compared with the viewpoint.
         let mut blocked = 0;
         for &i in &self.unbounded {
             blocked |= lanes_where(active & !blocked, |lane| {
                 let r = &rays[lane];
-                self.intersect_unbounded(i, r, from_view[lane], t_min, t_max[lane], &mut ())
+                self.intersect_unbounded(i, r, false, t_min, t_max[lane], &mut ())
                     .is_some()
             });
         }
@@ -653,7 +651,7 @@ impl World {
         // them (what they find is not asked).
         let object = std::array::from_fn(|k| {
             let lane = if open >> k & 1 == 1 { k } else { first };
-            s.object_ray(&rays[lane], from_view[lane])
+            s.object_ray(&rays[lane], false)
         });
         blocked | s.shape.occludes8(&object, open, t_min, t_max)
     }
