@@ -8,6 +8,10 @@
 //! [`from_slice_non_finite`] reads those as strings of the same length, which a field
 //! that accepts them turns back into numbers ([`non_finite`]), so every position in an
 //! error is still the one in the bytes as sent.
+//!
+//! [`from_slice`]: crate::json::from_slice
+//! [`from_slice_non_finite`]: crate::json::from_slice_non_finite
+//! [`non_finite`]: crate::json::non_finite
 
 use std::borrow::Cow;
 

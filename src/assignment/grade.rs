@@ -67,7 +67,7 @@ pub struct PartResult {
 
 /// A name from a fixed list. Spelled through an alias because serde's derive takes a
 /// field written `&'static str` as borrowed from the input, which a result read from a
-/// `String` cannot be; these are read by [`static_name`] instead.
+/// `String` cannot be; these are read by `static_name` instead.
 pub type StaticName = &'static str;
 
 /// One of `names` as read back, as the `&'static str` it was written from.

@@ -6,6 +6,10 @@
 //! keys, bad names, points and dates, and every problem inside each scene document, all
 //! reported at once with their JSON pointers (`/scenes/1/scene/objects/0/radius`).
 //! The format is described in `docs/assignments.md`.
+//!
+//! [`grade::grade_submission`]: crate::assignment::grade::grade_submission
+//! [`report`]: crate::assignment::report
+//! [`parse`]: crate::assignment::parse
 
 pub mod grade;
 pub mod gradebook;

@@ -2,6 +2,8 @@
 //! commands `serve` (the default) and `healthcheck`. The subcommands live in their own
 //! files; `main.rs` only calls [`run`]. `render --servers` (in `distributed`) renders
 //! one frame across several servers.
+//!
+//! [`run`]: crate::cli::run
 
 mod assignment;
 mod assignment_remote;

@@ -8,7 +8,7 @@
 //! below 1 is refused, since the grader cannot tell what it should show through.
 //!
 //! The codec sizes its decompression buffers from the headers without the caller's
-//! limit, so [`check_headers`] first reads the headers with the `exr` crate and refuses
+//! limit, so `check_headers` first reads the headers with the `exr` crate and refuses
 //! a file whose blocks or pixels would take more than the limit (a file of a few
 //! kilobytes can otherwise claim gigabytes).
 

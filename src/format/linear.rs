@@ -36,7 +36,7 @@ impl LinearImage {
     }
 
     /// The 8-bit image the renderer would write for these values: `gamma`, then
-    /// [`quantise`]'s rounding and clamping.
+    /// [`fn@quantise`]'s rounding and clamping.
     pub fn quantise(&self, gamma: Option<f64>) -> RgbImage {
         let mut data = Vec::with_capacity(self.data.len());
         for p in self.data.chunks_exact(3) {

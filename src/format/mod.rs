@@ -26,6 +26,22 @@
 //! Readers trust nothing: every problem is a [`ReadError`] saying where. The layers:
 //! `format` uses `geometry` (surfaces), `scene` (object names) and `render` (rectangles);
 //! `output`, `grade`, `server` and `cli` use `format`, never the other way.
+//!
+//! [`json`]: crate::format::json
+//! [`ndjson`]: crate::format::ndjson
+//! [`npy`]: crate::format::npy
+//! [`csv`]: crate::format::csv
+//! [`png`]: crate::format::png
+//! [`raster`]: crate::format::raster
+//! [`pfm`]: crate::format::pfm
+//! [`exr`]: crate::format::exr
+//! [`linear`]: crate::format::linear
+//! [`LinearImage`]: crate::format::LinearImage
+//! [`hit`]: crate::format::hit
+//! [`PixelHit`]: crate::format::PixelHit
+//! [`SubmittedHit`]: crate::format::SubmittedHit
+//! [`HitFormat`]: crate::format::HitFormat
+//! [`ReadError`]: crate::format::ReadError
 
 pub mod csv;
 pub mod exr;

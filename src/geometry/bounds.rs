@@ -386,7 +386,7 @@ fn near(o: f64) -> bool {
 /// distances are `(min − o_up) / d` and `(max − o_down) / d`: whatever the sign of `d`,
 /// the smaller is at most the true entry and the larger at least the true exit, so the
 /// only error left is the relative rounding of the direction, its reciprocal, the
-/// subtraction and the product, which [`SHRINK`] and [`GROW`] cover.
+/// subtraction and the product, which `SHRINK` and `GROW` cover.
 #[derive(Debug, Clone, Copy)]
 pub struct SlabRay4 {
     o_down: [f32x4; 3],

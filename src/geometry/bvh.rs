@@ -720,7 +720,7 @@ impl Bvh {
     ///
     /// The four-wide tree is traversed, its boxes tested in single precision
     /// ([`SlabRay4::enter_lanes`], the ray in every lane), where there is one (see
-    /// [`WIDE_FROM`]) and the ray's numbers fit that test; otherwise the binary tree in
+    /// `WIDE_FROM`) and the ray's numbers fit that test; otherwise the binary tree in
     /// double precision. Neither misses a box the ray enters, so the answer is the same.
     #[inline]
     pub fn any<F: FnMut(u32) -> bool>(

@@ -1,6 +1,6 @@
 //! Autograding: comparing a student's submission with the reference rendered from the
 //! same scene ([`grade`]), and explaining one pixel's computation ([`explain()`], in
-//! [`mod@explain`]).
+//! [`explain`](mod@crate::grade::explain)).
 //!
 //! ```text
 //! Submission::parse(bytes, hint) ──► grade(&renderer, submission, &tolerances, &options)
@@ -19,6 +19,11 @@
 //! Everything runs offline and in memory: the same calls serve the command line
 //! (`raytile grade`, `raytile trace`) and the HTTP handlers. A submission the grader
 //! cannot read is a [`GradeError`] saying what is wrong, never a panic.
+//!
+//! [`grade`]: crate::grade::grade
+//! [`explain()`]: crate::grade::explain()
+//! [`answer`]: crate::grade::answer
+//! [`GradeError`]: crate::grade::GradeError
 
 pub mod answer;
 pub mod cache;

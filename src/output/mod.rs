@@ -3,6 +3,10 @@
 //! ([`RowAssembler`]) and hand the rows to the writers of [`crate::format`], a tile to
 //! whichever worker is writing ([`handoff`]); and the file they are written to
 //! ([`OutputFile`]).
+//!
+//! [`RowAssembler`]: crate::output::RowAssembler
+//! [`handoff`]: crate::output::handoff
+//! [`OutputFile`]: crate::output::OutputFile
 
 pub mod file;
 pub mod footprint;

@@ -58,7 +58,7 @@ impl PrimaryRays {
     /// the eye, and its direction lies in the cone of the block's corners (it is
     /// linear in the image point), so a box wholly outside one of the cone's four
     /// sides is missed by every ray. Conservative: the cone is taken a pixel wider on
-    /// every side, and the box must lie outside it by [`SEPARATION`], so rounding
+    /// every side, and the box must lie outside it by `SEPARATION`, so rounding
     /// never makes it say so of a box some ray enters. `false` when unsure (a camera
     /// transform without an inverse, a box that is not finite).
     pub fn misses(&self, block: Rect, bounds: &Aabb) -> bool {

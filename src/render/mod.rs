@@ -1,6 +1,10 @@
 //! Rendering: the camera's primary rays, Whitted shading, and the tile loop that traces
 //! them on rayon. [`Renderer`] holds a scene prepared for tracing; its two kernels say
 //! what a pixel reports: a colour ([`ColourKernel`]) or its first hit ([`HitKernel`]).
+//!
+//! [`Renderer`]: crate::render::Renderer
+//! [`ColourKernel`]: crate::render::ColourKernel
+//! [`HitKernel`]: crate::render::HitKernel
 
 pub mod camera;
 pub mod cost;
@@ -426,7 +430,7 @@ impl Kernel for ColourKernel<'_> {
 }
 
 /// Reports each pixel's linear colour, before gamma and quantisation: what float images
-/// (PFM, OpenEXR) hold. [`ColourKernel`] is this kernel followed by [`quantise`]; kept
+/// (PFM, OpenEXR) hold. [`ColourKernel`] is this kernel followed by [`fn@quantise`]; kept
 /// apart so that the 8-bit path stays as it is.
 pub struct LinearKernel<'a>(pub &'a Renderer);
 

@@ -3,6 +3,11 @@
 //!
 //! Parse, then validate into another type: a `Scene` is always traceable, with every
 //! default filled in, every transform inverted and every material resolved.
+//!
+//! [`document`]: crate::scene::document
+//! [`Scene`]: crate::scene::Scene
+//! [`validate`]: crate::scene::validate
+//! [`problem`]: crate::scene::problem
 
 pub mod document;
 pub mod footprint;

@@ -395,7 +395,7 @@ pub fn deadline_of(req: &Request, app: &AppState) -> tokio::time::Instant {
 
 /// Reads the whole body behind `--max-body-bytes` and the request's deadline: 413 when
 /// `Content-Length` declares more than the limit (the body is then read and dropped, see
-/// [`DISCARD_BYTES`]), or as soon as more arrives; 504 when the deadline passes while it
+/// `DISCARD_BYTES`), or as soon as more arrives; 504 when the deadline passes while it
 /// arrives.
 pub async fn read_limited(req: Request, app: &AppState) -> Result<(Parts, Bytes), ApiError> {
     let deadline = deadline_of(&req, app);

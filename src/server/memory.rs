@@ -14,7 +14,7 @@
 //! | the built scene (objects, triangles, BVH) | from the validated scene's counts | [`crate::scene::footprint::built`] |
 //! | decoding a submission | pixels × bytes a pixel, from the PNG or NPY header (other images: from the frame); JSON, NDJSON and CSV from the body size | [`crate::format::footprint::submission`] |
 //! | the reference and the comparison of a grade | from the frame | [`crate::grade::footprint::grading`] |
-//! | a streamed answer's buffers | the channel and the row bands of the sinks | [`crate::output::footprint`] |
+//! | a streamed answer's buffers | the channel and the row bands of the sinks | [`fn@crate::output::footprint`] |
 //!
 //! A charge larger than the whole budget can never fit: it is refused at once with
 //! [`ApiError::OverMemory`] (413 for a body, 422 with the JSON pointers of the fields
@@ -220,7 +220,7 @@ impl MemoryBudget {
         self.queue.taken()
     }
 
-    /// A reservation holding nothing (to be grown by [`MemoryBudget::grow`]).
+    /// A reservation holding nothing (to be grown by [`MemoryBudget::resize`]).
     pub fn empty(&self) -> Reservation {
         Reservation {
             permit: None,

@@ -16,6 +16,28 @@
 //!   [`error`] (every failure → `application/problem+json`, in one place),
 //!   [`observe`] (request ids, log lines, request counts), [`shutdown`] (the phases of
 //!   a graceful stop), [`auth`] (bearer tokens under `--require-token`).
+//!
+//! [`app`]: crate::server::app
+//! [`serve`]: crate::server::serve
+//! [`render`]: crate::server::render
+//! [`trace`]: crate::server::trace
+//! [`grade`]: crate::server::grade
+//! [`validate`]: crate::server::validate
+//! [`scenes`]: crate::server::scenes
+//! [`health`]: crate::server::health
+//! [`metrics`]: crate::server::metrics
+//! [`assignments`]: crate::server::assignments
+//! [`gradebook`]: crate::server::gradebook
+//! [`connection`]: crate::server::connection
+//! [`extract`]: crate::server::extract
+//! [`admission`]: crate::server::admission
+//! [`memory`]: crate::server::memory
+//! [`stream`]: crate::server::stream
+//! [`job`]: crate::server::job
+//! [`error`]: crate::server::error
+//! [`observe`]: crate::server::observe
+//! [`shutdown`]: crate::server::shutdown
+//! [`auth`]: crate::server::auth
 
 pub mod admission;
 pub mod assignments;

@@ -248,7 +248,7 @@ async fn start(
 }
 
 /// Grows the scene's reservation by what streaming `region` as `output` holds
-/// ([`crate::output::footprint`]), before a render slot is taken: a frame too wide to
+/// ([`fn@crate::output::footprint`]), before a render slot is taken: a frame too wide to
 /// stream within the budget is refused with 422 and `/image/width`.
 async fn charge_output(
     app: &AppState,

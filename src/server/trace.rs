@@ -12,7 +12,7 @@
 //! `text`; without it `Accept` decides, JSON first), `candidates` (`auto`, `all`, `bvh`),
 //! `max_tests`, `max_triangles`, `max_rays`, as on the command line. Any other parameter
 //! is an error. The answer is bounded whatever they are (see
-//! [`explain::MAX_ENTRIES`]): what it leaves out it counts, under `truncation`.
+//! [`explain::MAX_ANSWER_BYTES`]): what it leaves out it counts, under `truncation`.
 //!
 //! Everything that can fail is decided before a render slot is taken: the query (400),
 //! the scene (415, 413, 400, 422, as for `/v1/render`), a pixel outside the image (422,

@@ -118,7 +118,7 @@ impl CanonicalShape for Mesh {
     }
 
     /// The rays of `active` traverse the triangles' BVH together (a lone ray goes on
-    /// its own), each tested and ranked as [`MeshAccel::intersect`] does.
+    /// its own), each tested and ranked as `MeshAccel::intersect` does.
     fn intersect8(
         &self,
         rays: &[Ray; 8],
@@ -157,7 +157,7 @@ impl CanonicalShape for Mesh {
     }
 
     /// The rays of `active` traverse the triangles' BVH together (a lone ray goes on
-    /// its own), each occluded as [`MeshAccel::occludes`] finds it.
+    /// its own), each occluded as `MeshAccel::occludes` finds it.
     fn occludes8(&self, rays: &[Ray; 8], active: u32, t_min: f64, t_max: [f64; 8]) -> u32 {
         let a = self.accel();
         let Some(slab) = packet(rays, active) else {

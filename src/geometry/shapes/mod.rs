@@ -3,7 +3,7 @@
 //! Every test takes a ray already carried into object space and returns the smallest
 //! `λ` in `(t_min, t_max)` with the *part* that was hit (a cube face, a cap, a
 //! triangle). Normals and other details are computed afterwards, for the closest hit
-//! only. Each test reports its intermediate values to a [`Probe`](super::hit::Probe).
+//! only. Each test reports its intermediate values to a [`Probe`].
 //!
 //! Each file implements [`CanonicalShape`] once. [`Shape`] is the closed enum the scene
 //! holds and the world traces: every method is one `match` that forwards to the

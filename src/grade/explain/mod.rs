@@ -6,7 +6,7 @@
 //! [`Shader::trace_probed`], with the explanation's recorder as its shading probe in place of
 //! the renderer's `()`, and the shape tests report their quadratics, faces and triangles
 //! through [`Probe`](crate::geometry::Probe). So every ray's colour is the tracer's, and
-//! the final colour is [`Renderer::pixel_colour`] quantised by [`quantise`]: the 8-bit
+//! the final colour is [`Renderer::pixel_colour`] quantised by [`fn@quantise`]: the 8-bit
 //! colour shown is the rendered PNG's pixel exactly.
 //!
 //! - [`model`]: the answer's types, as they serialise to JSON;

@@ -1,8 +1,8 @@
 //! A mesh's triangles stored four to a group, coordinate by coordinate, so that a ray
 //! is tested against a BVH leaf's triangles at once, one triangle a lane: the
-//! Möller–Trumbore numbers of each lane are those of [`moller_trumbore`], operation
-//! for operation (the same products, sums and one division, no fused steps), so the
-//! same bits.
+//! Möller–Trumbore numbers of each lane are those of
+//! [`moller_trumbore`](super::moller_trumbore), operation for operation (the same
+//! products, sums and one division, no fused steps), so the same bits.
 
 use glam::DVec3;
 
