@@ -532,11 +532,14 @@ impl World {
             }
             return;
         }
+        // Told that every ray starts at the viewpoint, inactive lanes too, each lane is
+        // carried, so that the shape may take the object rays' one origin as told.
+        let carried = if view { 0xff } else { active };
         let mut object = *rays;
-        for lane in lanes_of(active) {
+        for lane in lanes_of(carried) {
             object[lane] = s.object_ray(&rays[lane], view);
         }
-        let found = s.shape.intersect8(&object, active, t_min, *below);
+        let found = s.shape.intersect8(&object, view, active, t_min, *below);
         for lane in lanes_of(active) {
             best.keep(lane, i, found[lane], &mut limit[lane]);
         }

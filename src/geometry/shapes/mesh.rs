@@ -122,12 +122,13 @@ impl CanonicalShape for Mesh {
     fn intersect8(
         &self,
         rays: &[Ray; 8],
+        shared: bool,
         active: u32,
         t_min: f64,
         t_max: [f64; 8],
     ) -> [Option<(f64, u32)>; 8] {
         let a = self.accel();
-        let Some(slab) = packet(rays, active) else {
+        let Some(slab) = packet(rays, shared, active) else {
             return per_lane(active, |lane| {
                 a.intersect(&rays[lane], t_min, t_max[lane], &mut ())
             });
@@ -160,7 +161,7 @@ impl CanonicalShape for Mesh {
     /// its own), each occluded as `MeshAccel::occludes` finds it.
     fn occludes8(&self, rays: &[Ray; 8], active: u32, t_min: f64, t_max: [f64; 8]) -> u32 {
         let a = self.accel();
-        let Some(slab) = packet(rays, active) else {
+        let Some(slab) = packet(rays, false, active) else {
             return lanes_where(active, |lane| a.occludes(&rays[lane], t_min, t_max[lane]));
         };
         a.bvh.any8(
@@ -379,13 +380,18 @@ impl MeshAccel {
 
 /// The rays of `active` prepared as a packet for the triangles' BVH, or `None` where
 /// they go one at a time: a lone ray (a packet pays for more than one ray only), or
-/// rays the packet's test refuses ([`SlabRay4::new`]).
+/// rays the packet's test refuses ([`SlabRay4::new`]). `shared` as for
+/// [`CanonicalShape::intersect8`]: the origins are then taken as one, not compared.
 #[inline(always)]
-fn packet(rays: &[Ray; 8], active: u32) -> Option<[SlabRay4; 2]> {
-    if active.count_ones() > 1 {
-        SlabRay4::pair(rays)
-    } else {
+fn packet(rays: &[Ray; 8], shared: bool, active: u32) -> Option<[SlabRay4; 2]> {
+    let bits = |r: &Ray| r.origin.to_array().map(f64::to_bits);
+    debug_assert!(!shared || rays.iter().all(|r| bits(r) == bits(&rays[0])));
+    if active.count_ones() < 2 {
         None
+    } else if shared {
+        SlabRay4::pair_from(rays, true)
+    } else {
+        SlabRay4::pair(rays)
     }
 }
 

@@ -97,15 +97,19 @@ pub trait CanonicalShape {
     /// [`CanonicalShape::intersect`] for the rays of the bit set `active` (a packet,
     /// in object space), each within `(t_min, t_max[lane])`, nothing recorded: by
     /// default one ray at a time; a shape with its own hierarchy (a mesh) traverses
-    /// it once for all of them, with the same answers.
+    /// it once for all of them, with the same answers. `shared` says that the caller
+    /// knows all eight rays to start at one origin (a camera's), so that a packet
+    /// need not compare them to find out.
     #[inline]
     fn intersect8(
         &self,
         rays: &[Ray; 8],
+        shared: bool,
         active: u32,
         t_min: f64,
         t_max: [f64; 8],
     ) -> [Option<(f64, u32)>; 8] {
+        let _ = shared;
         per_lane(active, |lane| {
             self.intersect(&rays[lane], t_min, t_max[lane], &mut ())
         })
@@ -275,13 +279,14 @@ macro_rules! shapes {
             pub fn intersect8(
                 &self,
                 rays: &[Ray; 8],
+                shared: bool,
                 active: u32,
                 t_min: f64,
                 t_max: [f64; 8],
             ) -> [Option<(f64, u32)>; 8] {
                 match self {
-                    $( Shape::$P => <$PT as CanonicalShape>::intersect8(&$PT, rays, active, t_min, t_max), )*
-                    $( Shape::$D(s) => <$DT as CanonicalShape>::intersect8(s, rays, active, t_min, t_max), )*
+                    $( Shape::$P => <$PT as CanonicalShape>::intersect8(&$PT, rays, shared, active, t_min, t_max), )*
+                    $( Shape::$D(s) => <$DT as CanonicalShape>::intersect8(s, rays, shared, active, t_min, t_max), )*
                 }
             }
 
