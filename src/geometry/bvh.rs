@@ -222,16 +222,21 @@ impl Bvh {
     /// [`Bvh::build`] for a caller that tests a leaf's primitives `lanes` at a time
     /// (see [`Bvh::into_slots`]): `group_cost` is what testing a ray against a group of
     /// up to `lanes` costs, and the surface area heuristic counts a leaf's cost, and
-    /// each side's of a split, in groups.
-    pub fn build_in_groups(bounds: &[Aabb], group_cost: f64, lanes: usize) -> Bvh {
-        Bvh::build_from(bounds, group_cost, lanes.max(1), usize::MAX)
+    /// each side's of a split, in groups. `parallel` builds as
+    /// [`Bvh::build_in_parallel`] does (the same tree), under the same condition.
+    pub fn build_in_groups(bounds: &[Aabb], group_cost: f64, lanes: usize, parallel: bool) -> Bvh {
+        let parallel_from = if parallel { PARALLEL_PRIMS } else { usize::MAX };
+        Bvh::build_from(bounds, group_cost, lanes.max(1), parallel_from)
     }
 
     /// [`Bvh::build`], the two halves of every subtree of 8192 (`PARALLEL_PRIMS`) or more
     /// primitives built in parallel on the current rayon pool: the same tree. Not for a
     /// caller holding a lock that another job on the pool may ask for (a mesh building
     /// inside its `OnceLock`): while it waits for a half, a rayon thread runs other jobs,
-    /// and one of them could wait for that lock, on the very thread that holds it.
+    /// and one of them could wait for that lock, on the very thread that holds it. (A
+    /// mesh builds before it takes its lock, [`CanonicalShape::prepare`].)
+    ///
+    /// [`CanonicalShape::prepare`]: super::shapes::CanonicalShape::prepare
     pub fn build_in_parallel(bounds: &[Aabb], test_cost: f64) -> Bvh {
         Bvh::build_from(bounds, test_cost, 1, PARALLEL_PRIMS)
     }
@@ -1245,7 +1250,8 @@ mod tests {
 
     /// The traversal layout numbers inner nodes and leaves in the order a depth-first
     /// walk from the root meets them, each child's boxes are its subtree's, and the
-    /// layout flattened on every worker is the one flattened on one thread.
+    /// layout flattened on every worker is the one flattened on one thread (a tree for
+    /// groups too).
     #[test]
     fn the_layout_is_numbered_depth_first_on_one_thread_or_many() {
         let boxes: Vec<Aabb> = (0..20_000)
@@ -1260,13 +1266,22 @@ mod tests {
             .collect();
         let one = Bvh::build(&boxes, 1.0);
         let many = Bvh::build_in_parallel(&boxes, 1.0);
-        assert_eq!(one.root, many.root);
-        assert_eq!(one.leaves, many.leaves);
-        assert_eq!(one.packet, many.packet);
-        assert_eq!(one.inner.len(), many.inner.len());
-        for (a, b) in one.inner.iter().zip(&many.inner) {
-            assert_eq!((a.min, a.max, a.child), (b.min, b.max, b.child));
-        }
+        let same = |one: &Bvh, many: &Bvh| {
+            assert_eq!(one.root, many.root);
+            assert_eq!(one.leaves, many.leaves);
+            assert_eq!(one.order, many.order);
+            assert_eq!(one.packet, many.packet);
+            assert_eq!(one.inner.len(), many.inner.len());
+            for (a, b) in one.inner.iter().zip(&many.inner) {
+                assert_eq!((a.min, a.max, a.child), (b.min, b.max, b.child));
+            }
+        };
+        same(&one, &many);
+        // A tree for groups of four (a mesh's) likewise.
+        same(
+            &Bvh::build_in_groups(&boxes, 2.0, 4, false),
+            &Bvh::build_in_groups(&boxes, 2.0, 4, true),
+        );
         // Walking depth first from the root meets inner node 0, 1, 2, … and leaf 0,
         // 1, 2, …; each child holds its subtree's boxes and leaves.
         let (mut next_inner, mut next_leaf) = (0, 0);
@@ -1352,7 +1367,7 @@ mod tests {
             })
             .collect();
         let alone = Bvh::build(&boxes, 1.0);
-        let grouped = Bvh::build_in_groups(&boxes, 2.0, 4);
+        let grouped = Bvh::build_in_groups(&boxes, 2.0, 4, false);
         assert!(
             grouped.leaves.len() * 3 < alone.leaves.len() * 2,
             "{} leaves in groups, {} alone",

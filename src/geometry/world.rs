@@ -236,8 +236,8 @@ impl World {
     /// Prepares `(shape, world_from_object)` pairs, in scene order, and builds the BVH.
     pub fn new<'a>(objects: impl IntoIterator<Item = (&'a Shape, &'a Transform)>) -> World {
         let objects: Vec<(&Shape, &Transform)> = objects.into_iter().collect();
-        // Meshes build their BVH here, each under its own lock and on this thread: a
-        // rayon job waiting on that lock could be the one that holds it.
+        // Meshes build their BVH here, one after another, each on every worker and
+        // outside its lock (`CanonicalShape::prepare`).
         for (shape, _) in &objects {
             shape.prepare();
         }
@@ -266,7 +266,7 @@ impl World {
             })
             .collect();
         World {
-            // No lock is held here (meshes were prepared above, each in its own).
+            // No lock is held here.
             bvh: Bvh::build_in_parallel(&bounds, OBJECT_TEST_COST),
             solids,
             unbounded,
