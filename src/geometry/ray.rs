@@ -22,6 +22,13 @@ impl Ray {
         Self { origin, dir }
     }
 
+    /// Whether the ray starts at `o` bit for bit (so an origin that is not a number
+    /// starts at itself): what a caller that says rays share an origin claims.
+    #[inline]
+    pub fn starts_at(&self, o: DVec3) -> bool {
+        self.origin.to_array().map(f64::to_bits) == o.to_array().map(f64::to_bits)
+    }
+
     /// The point at parameter `lambda`.
     #[inline]
     pub fn at(&self, lambda: f64) -> DVec3 {

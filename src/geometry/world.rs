@@ -237,7 +237,7 @@ impl World {
     pub fn new<'a>(objects: impl IntoIterator<Item = (&'a Shape, &'a Transform)>) -> World {
         let objects: Vec<(&Shape, &Transform)> = objects.into_iter().collect();
         // Meshes build their BVH here, one after another, each on every worker and
-        // outside its lock (`CanonicalShape::prepare`).
+        // outside its lock (`Mesh::accel`).
         for (shape, _) in &objects {
             shape.prepare();
         }
@@ -438,7 +438,7 @@ impl World {
                 }
             },
         };
-        debug_assert!(!view || rays.iter().all(|r| self.is_viewpoint(r.origin)));
+        debug_assert!(!view || rays.iter().all(|r| self.is_viewpoint(r)));
         let mut best = Best8::new(t_max);
         let mut limit = [t_max; 8];
         if !self.unbounded.is_empty() {
@@ -714,11 +714,10 @@ impl World {
         c
     }
 
-    /// Whether `o` is the viewpoint, bit for bit (a camera's own origin, even one that
-    /// is not a number): what a caller that says its rays start there claims.
-    fn is_viewpoint(&self, o: DVec3) -> bool {
-        self.viewpoint
-            .is_some_and(|v| v.to_array().map(f64::to_bits) == o.to_array().map(f64::to_bits))
+    /// Whether `ray` starts at the viewpoint ([`Ray::starts_at`]): what a caller that
+    /// says its rays start there claims.
+    fn is_viewpoint(&self, ray: &Ray) -> bool {
+        self.viewpoint.is_some_and(|v| ray.starts_at(v))
     }
 
     /// The full record of a hit found on `ray`.
@@ -729,14 +728,14 @@ impl World {
     /// [`World::surface`] of a ray the caller knows to start at the viewpoint (a
     /// primary ray), its origin not compared (see [`World::closest8`]'s `view`).
     pub fn view_surface(&self, ray: &Ray, hit: &Hit) -> Surface {
-        debug_assert!(self.is_viewpoint(ray.origin));
+        debug_assert!(self.is_viewpoint(ray));
         self.record(ray, hit, true)
     }
 
     /// [`World::view_surface`] written into `out`, field by field, rather than
     /// returned to be copied there (see `Renderer::put_hit_record`).
     pub fn put_view_surface(&self, ray: &Ray, hit: &Hit, out: &mut Option<Surface>) {
-        debug_assert!(self.is_viewpoint(ray.origin));
+        debug_assert!(self.is_viewpoint(ray));
         *out = Some(self.record(ray, hit, true));
     }
 
