@@ -222,18 +222,21 @@ impl Bvh {
     /// [`Bvh::build`] for a caller that tests a leaf's primitives `lanes` at a time
     /// (see [`Bvh::into_slots`]): `group_cost` is what testing a ray against a group of
     /// up to `lanes` costs, and the surface area heuristic counts a leaf's cost, and
-    /// each side's of a split, in groups. Built as [`Bvh::build_in_parallel`] builds
-    /// (the same tree as on one thread), under the same condition.
-    pub fn build_in_groups(bounds: &[Aabb], group_cost: f64, lanes: usize) -> Bvh {
-        Bvh::build_from(bounds, group_cost, lanes.max(1), PARALLEL_PRIMS)
+    /// each side's of a split, in groups. `parallel` builds as
+    /// [`Bvh::build_in_parallel`] does (the same tree), under the same condition.
+    pub fn build_in_groups(bounds: &[Aabb], group_cost: f64, lanes: usize, parallel: bool) -> Bvh {
+        let parallel_from = if parallel { PARALLEL_PRIMS } else { usize::MAX };
+        Bvh::build_from(bounds, group_cost, lanes.max(1), parallel_from)
     }
 
     /// [`Bvh::build`], the two halves of every subtree of 8192 (`PARALLEL_PRIMS`) or more
     /// primitives built in parallel on the current rayon pool: the same tree. Not for a
-    /// caller holding a lock that another job on the pool may ask for (a mesh builds
-    /// before it takes its `OnceLock`): while it waits for a half, a rayon thread runs
-    /// other jobs, and one of them could wait for that lock, on the very thread that
-    /// holds it.
+    /// caller holding a lock that another job on the pool may ask for (a mesh building
+    /// inside its `OnceLock`): while it waits for a half, a rayon thread runs other jobs,
+    /// and one of them could wait for that lock, on the very thread that holds it. (A
+    /// mesh builds before it takes its lock, [`CanonicalShape::prepare`].)
+    ///
+    /// [`CanonicalShape::prepare`]: super::shapes::CanonicalShape::prepare
     pub fn build_in_parallel(bounds: &[Aabb], test_cost: f64) -> Bvh {
         Bvh::build_from(bounds, test_cost, 1, PARALLEL_PRIMS)
     }
@@ -1276,8 +1279,8 @@ mod tests {
         same(&one, &many);
         // A tree for groups of four (a mesh's) likewise.
         same(
-            &Bvh::build_from(&boxes, 2.0, 4, usize::MAX),
-            &Bvh::build_in_groups(&boxes, 2.0, 4),
+            &Bvh::build_in_groups(&boxes, 2.0, 4, false),
+            &Bvh::build_in_groups(&boxes, 2.0, 4, true),
         );
         // Walking depth first from the root meets inner node 0, 1, 2, … and leaf 0,
         // 1, 2, …; each child holds its subtree's boxes and leaves.
@@ -1364,7 +1367,7 @@ mod tests {
             })
             .collect();
         let alone = Bvh::build(&boxes, 1.0);
-        let grouped = Bvh::build_in_groups(&boxes, 2.0, 4);
+        let grouped = Bvh::build_in_groups(&boxes, 2.0, 4, false);
         assert!(
             grouped.leaves.len() * 3 < alone.leaves.len() * 2,
             "{} leaves in groups, {} alone",

@@ -237,7 +237,7 @@ impl World {
     pub fn new<'a>(objects: impl IntoIterator<Item = (&'a Shape, &'a Transform)>) -> World {
         let objects: Vec<(&Shape, &Transform)> = objects.into_iter().collect();
         // Meshes build their BVH here, one after another, each on every worker and
-        // outside its lock (`Mesh::accel`).
+        // outside its lock (`CanonicalShape::prepare`).
         for (shape, _) in &objects {
             shape.prepare();
         }

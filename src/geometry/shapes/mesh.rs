@@ -55,19 +55,11 @@ impl Mesh {
         ]
     }
 
-    /// The triangles' BVH, built by the first caller on every worker of the current
-    /// rayon pool, outside the mesh's lock, then kept unless another caller's got
-    /// there first (then it is dropped: the same BVH). Built inside the lock, it had
-    /// to be on one thread: a worker waiting there for its other half could run a job
-    /// that waits for the lock it holds (another render of the same scene). On two
-    /// threads, mesh-100k's build takes about 60 % of the time it takes on one.
+    /// The triangles' BVH, built on this thread by the first caller if
+    /// [`CanonicalShape::prepare`] has not built it.
     #[inline(always)]
     fn accel(&self) -> &MeshAccel {
-        if let Some(a) = self.accel.get() {
-            return a;
-        }
-        let built = MeshAccel::new(self);
-        self.accel.get_or_init(|| built)
+        self.accel.get_or_init(|| MeshAccel::new(self, false))
     }
 }
 
@@ -112,8 +104,16 @@ impl CanonicalShape for Mesh {
         }))
     }
 
+    /// Builds the triangles' BVH on every worker of the current rayon pool, outside the
+    /// mesh's lock, and keeps it unless another caller's got there first (then it is
+    /// dropped: the same BVH). Built inside the lock, it had to be on one thread: a
+    /// worker waiting there for its other half could run a job that waits for the
+    /// lock it holds (another render of the same scene). On two threads, mesh-100k's
+    /// build takes about 60 % of the time it takes on one.
     fn prepare(&self) {
-        self.accel();
+        if self.accel.get().is_none() {
+            let _ = self.accel.set(MeshAccel::new(self, true));
+        }
     }
 
     /// The closest triangle hit in `(t_min, t_max)`: `λ` and the triangle's index.
@@ -240,17 +240,20 @@ struct MeshAccel {
 }
 
 impl MeshAccel {
-    /// Builds the triangle BVH on every worker of the current rayon pool (never inside
-    /// the mesh's lock: see [`Bvh::build_in_parallel`]).
-    fn new(mesh: &Mesh) -> MeshAccel {
-        let bounds: Vec<Aabb> = (0..mesh.indices.len())
-            .into_par_iter()
-            .map(|i| {
-                let [a, b, c] = mesh.corners(i);
-                Aabb::EMPTY.grow(a).grow(b).grow(c)
-            })
-            .collect();
-        let bvh = Bvh::build_in_groups(&bounds, GROUP_TEST_COST, LANES);
+    /// Builds the triangle BVH, on every worker of the current rayon pool where
+    /// `parallel` (never inside the mesh's lock: see [`Bvh::build_in_parallel`]); the
+    /// same BVH either way.
+    fn new(mesh: &Mesh, parallel: bool) -> MeshAccel {
+        let bound = |i: usize| {
+            let [a, b, c] = mesh.corners(i);
+            Aabb::EMPTY.grow(a).grow(b).grow(c)
+        };
+        let bounds: Vec<Aabb> = if parallel {
+            (0..mesh.indices.len()).into_par_iter().map(bound).collect()
+        } else {
+            (0..mesh.indices.len()).map(bound).collect()
+        };
+        let bvh = Bvh::build_in_groups(&bounds, GROUP_TEST_COST, LANES, parallel);
         // The BVH's leaves name triangles in scene order; store them in leaf order so a
         // leaf's triangles sit together in memory, and remap the leaves to slots.
         let (bvh, held) = bvh.into_slots(LANES);
@@ -263,14 +266,16 @@ impl MeshAccel {
                 e2: v2 - v0,
             }
         };
-        let groups = held
-            .par_chunks(LANES)
-            .map(|lanes| {
-                Group::new(std::array::from_fn(|j| {
-                    lanes.get(j).copied().flatten().map(tri)
-                }))
-            })
-            .collect();
+        let group = |lanes: &[Option<u32>]| {
+            Group::new(std::array::from_fn(|j| {
+                lanes.get(j).copied().flatten().map(tri)
+            }))
+        };
+        let groups: Vec<Group> = if parallel {
+            held.par_chunks(LANES).map(group).collect()
+        } else {
+            held.chunks(LANES).map(group).collect()
+        };
         let ids = held
             .iter()
             .enumerate()
@@ -524,9 +529,9 @@ mod tests {
         }
     }
 
-    /// A mesh large enough that its subtrees are built on several workers stores its
-    /// triangles in the same slots built on four or on one, and what `prepare` builds
-    /// is what the mesh then traces with.
+    /// A mesh large enough that its subtrees are built on several workers
+    /// (`Bvh::build_in_groups`'s `parallel`) stores its triangles in the same slots
+    /// built either way, and what `prepare` builds is what the mesh then traces with.
     #[test]
     fn built_on_every_worker_or_on_one_thread_a_mesh_keeps_the_same_slots() {
         let positions: Vec<DVec3> = (0..60_000)
@@ -538,15 +543,12 @@ mod tests {
             .collect();
         let indices: Vec<[u32; 3]> = (0..20_000).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect();
         let m = Mesh::new(positions, indices);
-        let pool = |n| {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(n)
-                .build()
-                .unwrap()
-        };
-        let pool = [pool(4), pool(1)];
-        let many = pool[0].install(|| MeshAccel::new(&m));
-        let one = pool[1].install(|| MeshAccel::new(&m));
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(4)
+            .build()
+            .unwrap();
+        let many = pool.install(|| MeshAccel::new(&m, true));
+        let one = MeshAccel::new(&m, false);
         assert_eq!(many.ids, one.ids);
         assert_eq!(many.slot, one.slot);
         assert_eq!(many.groups.len(), one.groups.len());
@@ -554,7 +556,7 @@ mod tests {
         for k in 0..one.ids.len() as u32 {
             assert_eq!(bits(many.tri(k)), bits(one.tri(k)), "slot {k}");
         }
-        pool[0].install(|| m.prepare());
+        pool.install(|| m.prepare());
         let prepared = m.accel.get().expect("prepare builds the BVH");
         assert_eq!(prepared.ids, one.ids);
         // Prepared again, it is kept, not built anew.
