@@ -477,7 +477,7 @@ impl SlabRay4 {
         let d = ray.dir.to_array().map(|d| d as f32);
         // The three axes' reciprocals in one division, each then in every lane: the
         // same numbers as dividing each axis's four copies, in a third of the divisions
-        // (every lone shadow ray through a four-wide tree makes them).
+        // (every lone shadow ray through a wide tree makes them).
         let [x, y, z, _] = (f32x4::splat(1.0) / f32x4::new([d[0], d[1], d[2], 1.0])).to_array();
         SlabRay4::shared(d.map(f32x4::splat), [x, y, z].map(f32x4::splat), ray.origin)
     }
@@ -524,6 +524,27 @@ impl SlabRay4 {
         let near = near * f32x4::splat(SHRINK);
         let hit = near.simd_le(far * f32x4::splat(GROW));
         (hit.to_bitmask(), near)
+    }
+}
+
+/// A lone ray's test of a wide node's eight boxes ([`Bvh::any`](super::bvh::Bvh::any)):
+/// `planes[k][c]` holds coordinate `k` of child `c`'s box in [`Box32`]'s order; a bit
+/// per box the ray enters within `[t_min, t_max]`. Every implementation makes
+/// [`SlabRay4::enter_lanes`]'s operations lane for lane, so the bits are the same.
+pub trait WideTest {
+    /// The bit set of the eight boxes entered.
+    fn enter_wide(&self, planes: &[[f32; 8]; 6], t_min: f32, t_max: f32) -> u32;
+}
+
+impl WideTest for SlabRay4 {
+    /// Two passes of four lanes, the ray (made by [`SlabRay4::splat`]) in each.
+    #[inline(always)]
+    fn enter_wide(&self, planes: &[[f32; 8]; 6], t_min: f32, t_max: f32) -> u32 {
+        let (t_min, t_max) = (f32x4::splat(t_min), f32x4::splat(t_max));
+        let half = |h: usize| {
+            planes.map(|p| f32x4::new([p[4 * h], p[4 * h + 1], p[4 * h + 2], p[4 * h + 3]]))
+        };
+        self.enter_lanes(&half(0), t_min, t_max).0 | self.enter_lanes(&half(1), t_min, t_max).0 << 4
     }
 }
 

@@ -1,6 +1,6 @@
 //! A bounding volume hierarchy: binned surface-area-heuristic build, flat node arrays
 //! whose interior nodes hold both children's boxes, nearer-child-first traversal, and
-//! for rays that ask only whether anything blocks them, the same tree collapsed to four
+//! for rays that ask only whether anything blocks them, the same tree collapsed to eight
 //! children a node. Used over a scene's objects (world space) and over a mesh's
 //! triangles (object space), so the cost of a ray grows with the logarithm of the
 //! number of primitives.
@@ -17,7 +17,8 @@ use rayon::prelude::*;
 #[cfg(target_arch = "x86_64")]
 use super::bounds::x86::{Avx2, Avx512};
 use super::bounds::{
-    Aabb, Box32, BoxPair32, PairTest8, SlabRay, SlabRay4, box32, lanes_of, lanes8, within8,
+    Aabb, Box32, BoxPair32, PairTest8, SlabRay, SlabRay4, WideTest, box32, lanes_of, lanes8,
+    within8,
 };
 use super::ray::Ray;
 use wide::{f32x4, f32x8};
@@ -31,7 +32,7 @@ const SAH_MAX_DEPTH: usize = 48;
 /// Subtrees of at least this many primitives have their two halves built in parallel
 /// (the tree is the same): below it, a task would cost more than it saves.
 const PARALLEL_PRIMS: usize = 8192;
-/// Trees of at least this many inner nodes are also collapsed to four-wide nodes for
+/// Trees of at least this many inner nodes are also collapsed to wide nodes for
 /// [`Bvh::any`]. A smaller tree is crossed in a few binary steps, and a ray's set-up
 /// for the single-precision test costs more than the wide nodes save: `classic`'s
 /// nine objects (three inner nodes) rendered with 5 % more instructions through them.
@@ -91,18 +92,21 @@ struct PacketNode {
     child: [u32; 2],
 }
 
-/// A node of the four-wide tree that a lone ray looking for any hit traverses
-/// ([`Bvh::any`]): up to four subtrees of the binary tree, collapsed, with their boxes
-/// in single precision lane by lane, so that one pass of four lanes tests them all.
-/// A shadow ray visits about half as many of them as of binary nodes, and needs no
-/// order among the children it enters.
+/// Children of a node of the wide tree ([`WideNode`]).
+pub(super) const WIDE: usize = 8;
+
+/// A node of the wide tree that a lone ray looking for any hit traverses
+/// ([`Bvh::any`]): up to eight subtrees of the binary tree, collapsed, with their boxes
+/// in single precision lane by lane, so that one pass of eight lanes tests them all
+/// ([`WideTest`]). A shadow ray visits about a third as many of them as of binary
+/// nodes, and needs no order among the children it enters.
 #[derive(Debug, Clone, Copy)]
 #[repr(C, align(64))]
 struct WideNode {
-    /// `planes[k]`, lane `c`: coordinate `k` of child `c`'s box, in [`Box32`]'s order.
-    planes: [f32x4; 6],
+    /// `planes[k][c]`: coordinate `k` of child `c`'s box, in [`Box32`]'s order.
+    planes: [[f32; WIDE]; 6],
     /// Each child: an index into `wide`, or `LEAF | index` into `leaves`.
-    child: [u32; 4],
+    child: [u32; WIDE],
     /// A bit per lane that holds a child.
     used: u32,
 }
@@ -127,7 +131,7 @@ pub struct Bvh {
     packet: Vec<PacketNode>,
     /// The root's box in single precision.
     root32: Box32,
-    /// The tree collapsed to four children a node ([`Bvh::any`]).
+    /// The tree collapsed to eight children a node ([`Bvh::any`]).
     wide: Vec<WideNode>,
     /// Its root: an index into `wide` or `LEAF | index`.
     wide_root: u32,
@@ -342,17 +346,17 @@ impl Bvh {
         }
     }
 
-    /// Collapses the binary subtree at inner node `node` into four-wide nodes appended
-    /// to `wide`, returning its index: a node takes its two children, then splits the
-    /// inner child of largest surface into its own two while it has fewer than four
-    /// (the children a ray most likely enters are opened first).
+    /// Collapses the binary subtree at inner node `node` into wide nodes appended to
+    /// `wide`, returning its index: a node takes its two children, then splits the
+    /// inner child of largest surface into its own two while it has fewer than
+    /// [`WIDE`] (the children a ray most likely enters are opened first).
     fn collapse(&self, node: u32, wide: &mut Vec<WideNode>) -> u32 {
         let two = |i: u32| {
             let n = &self.packet[i as usize];
             [0, 1].map(|c| (n.child[c], n.boxes.child(c)))
         };
-        let mut slots: ArrayVec<(u32, Box32), 4> = two(node).into_iter().collect();
-        while slots.len() < 4 {
+        let mut slots: ArrayVec<(u32, Box32), WIDE> = two(node).into_iter().collect();
+        while slots.len() < WIDE {
             let widest = slots
                 .iter()
                 .enumerate()
@@ -367,23 +371,21 @@ impl Bvh {
         // The node's place first, so that its subtrees follow it (depth first).
         let at = wide.len();
         let mut n = WideNode {
-            planes: [f32x4::ZERO; 6],
-            child: [LEAF; 4],
+            planes: [[0.0; WIDE]; 6],
+            child: [LEAF; WIDE],
             used: (1 << slots.len()) - 1,
         };
         wide.push(n);
-        let mut planes = [[0f32; 4]; 6];
         for (c, &(r, b)) in slots.iter().enumerate() {
             n.child[c] = if r & LEAF != 0 {
                 r
             } else {
                 self.collapse(r, wide)
             };
-            for k in 0..6 {
-                planes[k][c] = b[k];
+            for (k, &x) in b.iter().enumerate() {
+                n.planes[k][c] = x;
             }
         }
-        n.planes = planes.map(f32x4::new);
         wide[at] = n;
         at as u32
     }
@@ -723,86 +725,110 @@ impl Bvh {
     /// Whether `leaf(prim)` is true for some primitive whose box the ray enters within
     /// `(t_min, t_max)`; stops at the first.
     ///
-    /// The four-wide tree is traversed, its boxes tested in single precision
-    /// ([`SlabRay4::enter_lanes`], the ray in every lane), where there is one (see
-    /// `WIDE_FROM`) and the ray's numbers fit that test; otherwise the binary tree in
-    /// double precision. Neither misses a box the ray enters, so the answer is the same.
+    /// The wide tree is traversed, a node's eight boxes tested in single precision
+    /// ([`WideTest`], the ray in every lane), where there is one (see `WIDE_FROM`), the
+    /// ray's numbers fit that test and (on x86-64) the processor has AVX2; otherwise
+    /// the binary tree in double precision. Neither misses a box the ray enters, so the
+    /// answer is the same.
     #[inline]
-    pub fn any<F: FnMut(u32) -> bool>(
+    pub fn any<F: FnMut(u32) -> bool>(&self, ray: &Ray, t_min: f64, t_max: f64, leaf: F) -> bool {
+        self.first_found(ray, t_min, t_max, leaf).is_some()
+    }
+
+    /// [`Bvh::any`], giving the primitive `leaf` was true for: the first met in the
+    /// traversal's order, which is not the nearest.
+    // The primitive is returned, not written by `leaf` where the caller reads it: a
+    // caller's variable that `leaf` writes lives in memory across the call into the
+    // traversal compiled for AVX2, and every shadow ray of `classic` (whose tree is
+    // too small to take that call) paid for keeping it there. A loop, not
+    // `Iterator::find`: that was left a call, and the leaf function with it.
+    #[allow(clippy::manual_find)]
+    #[inline]
+    pub fn first_found<F: FnMut(u32) -> bool>(
         &self,
         ray: &Ray,
         t_min: f64,
         t_max: f64,
         mut leaf: F,
-    ) -> bool {
+    ) -> Option<u32> {
         self.any_by_leaf(
             ray,
             t_min,
             t_max,
             #[inline(always)]
-            |prims| {
-                // A loop, not `Iterator::any`: that was left a call, and the leaf
-                // function with it.
+            move |prims| {
                 for &p in prims {
                     if leaf(p) {
-                        return true;
+                        return Some(p);
                     }
                 }
-                false
+                None
             },
         )
     }
 
-    /// [`Bvh::any`], a leaf at a time: whether `leaf(prims)` is true for some leaf's
-    /// primitives.
+    /// [`Bvh::any`], a leaf at a time: the first of `leaf(prims)` over the leaves entered
+    /// that is `Some` (what the caller makes of a leaf that blocks the ray).
     #[inline]
-    pub fn any_by_leaf<F: FnMut(&[u32]) -> bool>(
+    pub fn any_by_leaf<T, F: FnMut(&[u32]) -> Option<T>>(
         &self,
         ray: &Ray,
         t_min: f64,
         t_max: f64,
         leaf: F,
-    ) -> bool {
-        let lanes = if self.wide.is_empty() {
-            None
-        } else {
-            SlabRay4::splat(ray)
-        };
-        match lanes {
-            Some(lanes) => self.any_wide(&lanes, t_min, t_max, leaf),
-            None => self.any_exact(&SlabRay::new(ray.origin, ray.dir), t_min, t_max, leaf),
+    ) -> Option<T> {
+        // On x86-64, the wide tree is traversed where the processor has AVX2 (a node's
+        // eight boxes in one pass), the binary tree on the few without: each caller
+        // inlines two copies of the traversal and its leaves' tests, not three.
+        if !self.wide.is_empty()
+            && let Some(lanes) = SlabRay4::splat(ray)
+        {
+            #[cfg(target_arch = "x86_64")]
+            if let Some(avx2) = Avx2::detect() {
+                // Always inlined into `run`'s function, so that the traversal (its
+                // leaves' tests too) is compiled for AVX2.
+                return avx2.run(
+                    #[inline(always)]
+                    || self.any_wide(&avx2.splat_wide(&lanes), t_min, t_max, leaf),
+                );
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            return self.any_wide(&lanes, t_min, t_max, leaf);
         }
+        self.any_exact(&SlabRay::new(ray.origin, ray.dir), t_min, t_max, leaf)
     }
 
-    /// [`Bvh::any`] through the four-wide tree (which exists only for a tree of
-    /// [`WIDE_FROM`] inner nodes or more, so never for an empty one).
+    /// [`Bvh::any`] through the wide tree (which exists only for a tree of
+    /// [`WIDE_FROM`] inner nodes or more, so never for an empty one), a node's boxes
+    /// tested by `ray`'s [`WideTest`].
     #[inline(always)]
-    fn any_wide<F: FnMut(&[u32]) -> bool>(
+    fn any_wide<R: WideTest, T, F: FnMut(&[u32]) -> Option<T>>(
         &self,
-        ray: &SlabRay4,
+        ray: &R,
         t_min: f64,
         t_max: f64,
         mut leaf: F,
-    ) -> bool {
+    ) -> Option<T> {
         // Rounded to the nearest `f32`, as a packet's limits are (`lanes`). No test of
-        // the whole tree's box first: the wide root is an inner node, its four boxes lie
-        // inside it (each rounded outward alike) and take one pass of four lanes, as the
-        // root's box alone does, so a ray that misses it is turned away at the same
-        // cost, and one that enters (every shadow ray starting inside the tree's box)
-        // saves a pass.
-        let (t_min, t_max) = (f32x4::splat(t_min as f32), f32x4::splat(t_max as f32));
-        // A node pushes at most three children, and a path has no more wide nodes than
-        // binary ones.
-        let mut stack: ArrayVec<u32, { 3 * STACK_SIZE }> = ArrayVec::new();
+        // the whole tree's box first: the wide root is an inner node, its boxes lie
+        // inside it (each rounded outward alike) and take one pass, as the root's box
+        // alone does, so a ray that misses it is turned away at the same cost, and one
+        // that enters (every shadow ray starting inside the tree's box) saves a pass.
+        let (t_min, t_max) = (t_min as f32, t_max as f32);
+        // The children entered but not yet visited, a node at a time: the node and
+        // the bit set of them. A path has no more wide nodes than binary ones, so the
+        // binary tree's bound holds (a child at a time, the stack took seven times as
+        // much room, and every caller's frame a page more, probed on each call).
+        let mut stack: ArrayVec<(u32, u32), STACK_SIZE> = ArrayVec::new();
         let mut cur = self.wide_root;
         loop {
             if cur & LEAF != 0 {
-                if self.leaf_any(cur, &mut leaf) {
-                    return true;
+                if let found @ Some(_) = self.leaf_any(cur, &mut leaf) {
+                    return found;
                 }
             } else {
                 let n = &self.wide[cur as usize];
-                let entered = ray.enter_lanes(&n.planes, t_min, t_max).0 & n.used;
+                let entered = ray.enter_wide(&n.planes, t_min, t_max) & n.used;
                 // The next node chosen by branches, not computed from the mask: the
                 // processor then goes on to it while the box test is still in flight,
                 // where an index computed from the mask made every node wait for the
@@ -813,12 +839,12 @@ impl Bvh {
                     2 => Some(1),
                     4 => Some(2),
                     8 => Some(3),
+                    16 => Some(4),
+                    32 => Some(5),
+                    64 => Some(6),
+                    128 => Some(7),
                     _ => {
-                        let mut rest = entered & (entered - 1);
-                        while rest != 0 {
-                            let _ = stack.try_push(n.child[rest.trailing_zeros() as usize]);
-                            rest &= rest - 1;
-                        }
+                        let _ = stack.try_push((cur, entered & (entered - 1)));
                         Some(entered.trailing_zeros() as usize)
                     }
                 };
@@ -827,41 +853,44 @@ impl Bvh {
                     continue;
                 }
             }
-            match stack.pop() {
-                Some(c) => cur = c,
-                None => return false,
+            let (node, rest) = stack.last_mut()?;
+            let c = rest.trailing_zeros() as usize;
+            *rest &= *rest - 1;
+            cur = self.wide[*node as usize].child[c];
+            if *rest == 0 {
+                stack.pop();
             }
         }
     }
 
     /// `leaf` of the primitives of leaf `reference`.
     #[inline(always)]
-    fn leaf_any<F: FnMut(&[u32]) -> bool>(&self, reference: u32, leaf: &mut F) -> bool {
+    fn leaf_any<T, F: FnMut(&[u32]) -> Option<T>>(
+        &self,
+        reference: u32,
+        leaf: &mut F,
+    ) -> Option<T> {
         let (start, count) = self.leaves[(reference & !LEAF) as usize];
         leaf(&self.order[start as usize..(start + count) as usize])
     }
 
     /// [`Bvh::any`] through the binary tree, its boxes tested in double precision.
     #[inline(always)]
-    fn any_exact<F: FnMut(&[u32]) -> bool>(
+    fn any_exact<T, F: FnMut(&[u32]) -> Option<T>>(
         &self,
         ray: &SlabRay,
         t_min: f64,
         t_max: f64,
         mut leaf: F,
-    ) -> bool {
-        let Some(root) = self.nodes.first() else {
-            return false;
-        };
-        if ray.enter(root.min, root.max, t_min, t_max).is_none() {
-            return false;
-        }
+    ) -> Option<T> {
+        let root = self.nodes.first()?;
+        ray.enter(root.min, root.max, t_min, t_max)?;
         let mut stack: ArrayVec<u32, STACK_SIZE> = ArrayVec::new();
         let mut cur = self.root;
         loop {
             if cur & LEAF != 0 {
-                if self.leaf_any(cur, &mut leaf) {
-                    return true;
+                if let found @ Some(_) = self.leaf_any(cur, &mut leaf) {
+                    return found;
                 }
             } else {
                 let n = &self.inner[cur as usize];
@@ -877,7 +906,7 @@ impl Bvh {
             }
             match stack.pop() {
                 Some(c) => cur = c,
-                None => return false,
+                None => return None,
             }
         }
     }
@@ -890,7 +919,7 @@ impl Bvh {
         let mut out = Vec::new();
         self.any_exact(ray, t_min, t_max, |prims| {
             out.extend_from_slice(prims);
-            false
+            None::<()>
         });
         out
     }
@@ -1636,6 +1665,15 @@ mod tests {
         ) {
             let bvh = Bvh::build(&boxes, test_cost);
             prop_assert_eq!(!bvh.wide.is_empty(), bvh.inner.len() >= WIDE_FROM);
+            // A wide node is full, or holds nothing left to open: only leaves.
+            for n in &bvh.wide {
+                let children = n.used.count_ones() as usize;
+                let leaves = n.child[..children].iter().filter(|&&c| c & LEAF != 0).count();
+                prop_assert!(
+                    children == WIDE || leaves == children,
+                    "{} children, {} of them leaves", children, leaves
+                );
+            }
             for (c, d, reach) in rays {
                 // From grid points (on faces, edges and corners) along the grid's
                 // diagonals or anywhere, as far as some box or as far as a box's face.
@@ -1654,8 +1692,14 @@ mod tests {
                         "ray {:?} + λ {:?} to {}", o, d, t_max
                     );
                     let exact = SlabRay::new(o, d);
-                    let blocked_in = |prims: &[u32]| prims.iter().any(|&i| blocked(i));
-                    prop_assert_eq!(bvh.any_exact(&exact, 1e-9, t_max, blocked_in), every);
+                    let blocked_in = |prims: &[u32]| prims.iter().copied().find(|&i| blocked(i));
+                    prop_assert_eq!(bvh.any_exact(&exact, 1e-9, t_max, blocked_in).is_some(), every);
+                    // The wide tree in two passes of four lanes a node, as traversed
+                    // where the processor has no AVX2 (the dispatched `any` above
+                    // takes one pass of eight where it has).
+                    if let Some(lanes) = SlabRay4::splat(&ray).filter(|_| !bvh.wide.is_empty()) {
+                        prop_assert_eq!(bvh.any_wide(&lanes, 1e-9, t_max, blocked_in).is_some(), every);
+                    }
                     // Every box entered is seen, not only the first that blocks.
                     let mut seen = Vec::new();
                     bvh.any(&ray, 1e-9, t_max, |i| {

@@ -577,7 +577,7 @@ impl World {
         // space, not compared with the viewpoint first (see `World::closest8`'s
         // `view`): render instructions −0.5 % on spheres-1k and spheres-100k.
         let from_view = false;
-        let test = |i: u32| self.occludes_object(i, ray, from_view, t_min, t_max);
+        let test = move |i: u32| self.occludes_object(i, ray, from_view, t_min, t_max);
         if let Some(i) = hint.object()
             && test(i)
         {
@@ -591,31 +591,15 @@ impl World {
             *hint = ShadowHint::new(plane);
             return true;
         }
-        let mut found = None;
-        let blocked = match self.lone() {
-            Some(i) => {
-                found = test(i).then_some(i);
-                found.is_some()
-            }
+        let found = match self.lone() {
+            Some(i) => test(i).then_some(i),
             // Always inlined: left a call (the three uses of the test were too many
             // for the inliner), each primitive tested paid for it. Render instructions
             // −2.4 % on spheres-1k, −3.4 % on cubes-10k; trace −2.6 % on spheres-100k.
-            None => self.bvh.any(
-                ray,
-                t_min,
-                t_max,
-                #[inline(always)]
-                |i| {
-                    let b = test(i);
-                    if b {
-                        found = Some(i);
-                    }
-                    b
-                },
-            ),
+            None => self.bvh.first_found(ray, t_min, t_max, test),
         };
         *hint = ShadowHint::new(found);
-        blocked
+        found.is_some()
     }
 
     /// [`World::occluded`] for the shadow rays of `active` (lanes of a packet), each

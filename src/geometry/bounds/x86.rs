@@ -10,7 +10,7 @@ use std::arch::x86_64::*;
 
 use wide::f32x4;
 
-use super::{BoxPair32, GROW, PairTest, PairTest8, SHRINK, SlabRay4};
+use super::{BoxPair32, GROW, PairTest, PairTest8, SHRINK, SlabRay4, WideTest};
 use crate::geometry::arith::Lanes4;
 use wide::f32x8;
 
@@ -64,6 +64,66 @@ impl Avx2 {
     pub fn widen(self, rays: &SlabRay4) -> SlabRay8 {
         // SAFETY: an `Avx2` exists only where the processor has AVX2 (`detect`).
         unsafe { widen(rays) }
+    }
+}
+
+impl Avx2 {
+    /// A lone ray (made by [`SlabRay4::splat`]) in eight lanes, to test a wide node's
+    /// eight boxes in one pass.
+    #[inline(always)]
+    pub fn splat_wide(self, ray: &SlabRay4) -> WideRay8 {
+        let lane = |v: &[f32x4; 3]| {
+            // SAFETY: an `Avx2` exists only where the processor has AVX2 (`detect`).
+            v.map(|x| unsafe { _mm256_set1_ps(x.to_array()[0]) })
+        };
+        WideRay8 {
+            o_down: lane(&ray.o_down),
+            o_up: lane(&ray.o_up),
+            inv: lane(&ray.inv),
+        }
+    }
+}
+
+/// One ray in eight AVX2 lanes, against a wide node's eight boxes. Made only by
+/// [`Avx2::splat_wide`], so only where the processor has AVX2.
+#[derive(Debug, Clone, Copy)]
+pub struct WideRay8 {
+    o_down: [__m256; 3],
+    o_up: [__m256; 3],
+    inv: [__m256; 3],
+}
+
+impl WideRay8 {
+    /// [`WideTest::enter_wide`], in AVX2.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn enter_wide_avx2(&self, planes: &[[f32; 8]; 6], t_min: f32, t_max: f32) -> u32 {
+        let mut near = _mm256_set1_ps(t_min);
+        let mut far = _mm256_set1_ps(t_max);
+        for a in 0..3 {
+            // SAFETY: each row is eight `f32`, read unaligned.
+            let (lo, hi) = unsafe {
+                (
+                    _mm256_loadu_ps(planes[a].as_ptr()),
+                    _mm256_loadu_ps(planes[a + 3].as_ptr()),
+                )
+            };
+            let t0 = _mm256_mul_ps(_mm256_sub_ps(lo, self.o_up[a]), self.inv[a]);
+            let t1 = _mm256_mul_ps(_mm256_sub_ps(hi, self.o_down[a]), self.inv[a]);
+            near = _mm256_max_ps(near, _mm256_min_ps(t0, t1));
+            far = _mm256_min_ps(far, _mm256_max_ps(t0, t1));
+        }
+        let near = _mm256_mul_ps(near, _mm256_set1_ps(SHRINK));
+        let hit = _mm256_cmp_ps::<_CMP_LE_OS>(near, _mm256_mul_ps(far, _mm256_set1_ps(GROW)));
+        _mm256_movemask_ps(hit) as u32
+    }
+}
+
+impl WideTest for WideRay8 {
+    #[inline(always)]
+    fn enter_wide(&self, planes: &[[f32; 8]; 6], t_min: f32, t_max: f32) -> u32 {
+        // SAFETY: a `WideRay8` exists only where the processor has AVX2 (`Avx2`).
+        unsafe { self.enter_wide_avx2(planes, t_min, t_max) }
     }
 }
 
@@ -406,6 +466,40 @@ mod tests {
                         &half[c].1.to_array()[..]
                     );
                 }
+            }
+        }
+
+        #[test]
+        fn a_wide_nodes_eight_boxes_in_one_pass_give_what_two_passes_give(
+            boxes in prop::array::uniform8(aabb()),
+            origin in prop::array::uniform3(coord()),
+            d in prop::array::uniform3(dir()),
+            t_max in prop_oneof![Just(f64::INFINITY), 0.0f64..12.0],
+            t_min in prop_oneof![Just(0.0), 0.0f64..2.0],
+        ) {
+            let ray = Ray::new(DVec3::from(origin), DVec3::from(d));
+            let four = SlabRay4::splat(&ray).expect("no zero direction component");
+            let Some(avx2) = Avx2::detect() else {
+                // Nothing to compare on a processor without AVX2.
+                return Ok(());
+            };
+            let mut planes = [[0f32; 8]; 6];
+            for (c, b) in boxes.iter().enumerate() {
+                for (k, x) in super::super::box32(b).into_iter().enumerate() {
+                    planes[k][c] = x;
+                }
+            }
+            let (t_min, t_max) = (t_min as f32, t_max as f32);
+            let one = avx2.splat_wide(&four).enter_wide(&planes, t_min, t_max);
+            prop_assert_eq!(one, four.enter_wide(&planes, t_min, t_max));
+            // And each box's bit is `enter`'s of that box alone.
+            for (c, b) in boxes.iter().enumerate() {
+                let (hit, _) = four.enter(
+                    &super::super::box32(b),
+                    f32x4::splat(t_min),
+                    f32x4::splat(t_max),
+                );
+                prop_assert_eq!(one >> c & 1, hit & 1, "box {}", c);
             }
         }
 

@@ -367,13 +367,18 @@ impl MeshAccel {
     /// Whether any triangle is hit in `(t_min, t_max)`.
     #[inline]
     fn occludes(&self, ray: &Ray, t_min: f64, t_max: f64) -> bool {
-        self.bvh.any_by_leaf(
-            ray,
-            t_min,
-            t_max,
-            #[inline(always)]
-            |slots| self.occludes_in_leaf(slots, ray, t_min, t_max),
-        )
+        self.bvh
+            .any_by_leaf(
+                ray,
+                t_min,
+                t_max,
+                #[inline(always)]
+                |slots| {
+                    self.occludes_in_leaf(slots, ray, t_min, t_max)
+                        .then_some(())
+                },
+            )
+            .is_some()
     }
 
     /// Whether some triangle of a leaf (its `slots`) is hit in `(t_min, t_max)`.
