@@ -577,9 +577,8 @@ impl World {
         // space, not compared with the viewpoint first (see `World::closest8`'s
         // `view`): render instructions −0.5 % on spheres-1k and spheres-100k.
         let from_view = false;
-        let test = move |i: u32| self.occludes_object(i, ray, from_view, t_min, t_max);
         if let Some(i) = hint.object()
-            && test(i)
+            && self.occludes_object(i, ray, from_view, t_min, t_max)
         {
             return true;
         }
@@ -592,11 +591,19 @@ impl World {
             return true;
         }
         let found = match self.lone() {
-            Some(i) => test(i).then_some(i),
+            Some(i) => self
+                .occludes_object(i, ray, from_view, t_min, t_max)
+                .then_some(i),
             // Always inlined: left a call (the three uses of the test were too many
             // for the inliner), each primitive tested paid for it. Render instructions
             // −2.4 % on spheres-1k, −3.4 % on cubes-10k; trace −2.6 % on spheres-100k.
-            None => self.bvh.first_found(ray, t_min, t_max, test),
+            None => self.bvh.first_found(
+                ray,
+                t_min,
+                t_max,
+                #[inline(always)]
+                move |i| self.occludes_object(i, ray, from_view, t_min, t_max),
+            ),
         };
         *hint = ShadowHint::new(found);
         found.is_some()
