@@ -737,11 +737,10 @@ impl Bvh {
 
     /// [`Bvh::any`], giving the primitive `leaf` was true for: the first met in the
     /// traversal's order, which is not the nearest.
-    // The primitive is returned, not written by `leaf` where the caller reads it: a
-    // caller's variable that `leaf` writes lives in memory across the call into the
-    // traversal compiled for AVX2, and every shadow ray of `classic` (whose tree is
-    // too small to take that call) paid for keeping it there. A loop, not
-    // `Iterator::find`: that was left a call, and the leaf function with it.
+    // The primitive is returned, not written by `leaf` into a variable of the
+    // caller's: such a variable would live in memory across the call into the
+    // traversal compiled for AVX2, on every call, those that never take it too. A
+    // loop, not `Iterator::find`: that was left a call, and the leaf function with it.
     #[allow(clippy::manual_find)]
     #[inline]
     pub fn first_found<F: FnMut(u32) -> bool>(
