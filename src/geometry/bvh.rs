@@ -722,28 +722,22 @@ impl Bvh {
         }
     }
 
-    /// Whether `leaf(prim)` is true for some primitive whose box the ray enters within
-    /// `(t_min, t_max)`; stops at the first.
+    /// The first primitive met whose box the ray enters within `(t_min, t_max)` and
+    /// for which `leaf(prim)` is true, if any (the first in the traversal's order, which
+    /// is not the nearest); stops there.
     ///
     /// The wide tree is traversed, a node's eight boxes tested in single precision
     /// ([`WideTest`], the ray in every lane), where there is one (see `WIDE_FROM`), the
     /// ray's numbers fit that test and (on x86-64) the processor has AVX2; otherwise
     /// the binary tree in double precision. Neither misses a box the ray enters, so the
     /// answer is the same.
-    #[inline]
-    pub fn any<F: FnMut(u32) -> bool>(&self, ray: &Ray, t_min: f64, t_max: f64, leaf: F) -> bool {
-        self.first_found(ray, t_min, t_max, leaf).is_some()
-    }
-
-    /// [`Bvh::any`], giving the primitive `leaf` was true for: the first met in the
-    /// traversal's order, which is not the nearest.
     // The primitive is returned, not written by `leaf` into a variable of the
     // caller's: such a variable would live in memory across the call into the
     // traversal compiled for AVX2, on every call, those that never take it too. A
     // loop, not `Iterator::find`: that was left a call, and the leaf function with it.
     #[allow(clippy::manual_find)]
     #[inline]
-    pub fn first_found<F: FnMut(u32) -> bool>(
+    pub fn any<F: FnMut(u32) -> bool>(
         &self,
         ray: &Ray,
         t_min: f64,
@@ -1447,8 +1441,8 @@ mod tests {
             .collect();
         let bvh = Bvh::build(&boxes, 1.0);
         let up = Ray::new(DVec3::new(9.0, -5.0, 0.0), DVec3::Y);
-        assert!(bvh.any(&up, 0.0, f64::INFINITY, |p| p == 3));
-        assert!(!bvh.any(&up, 0.0, 1.0, |_| true));
+        assert!(bvh.any(&up, 0.0, f64::INFINITY, |p| p == 3).is_some());
+        assert!(bvh.any(&up, 0.0, 1.0, |_| true).is_none());
     }
 
     /// The surface of box `b` (closed, faces included): the first `λ` in
@@ -1649,7 +1643,7 @@ mod tests {
                 let t_max = slow.map_or(3.0, |(t, _)| t);
                 let blocked = |i: u32| box_surface(&boxes[i as usize], o, d, 1e-9, t_max).is_some();
                 prop_assert_eq!(
-                    bvh.any(&Ray::new(o, d), 1e-9, t_max, blocked),
+                    bvh.any(&Ray::new(o, d), 1e-9, t_max, blocked).is_some(),
                     (0..boxes.len() as u32).any(blocked)
                 );
             }
@@ -1687,7 +1681,7 @@ mod tests {
                         |i: u32| box_surface(&boxes[i as usize], o, d, 1e-9, t_max).is_some();
                     let every = (0..boxes.len() as u32).any(blocked);
                     prop_assert_eq!(
-                        bvh.any(&ray, 1e-9, t_max, blocked), every,
+                        bvh.any(&ray, 1e-9, t_max, blocked).is_some(), every,
                         "ray {:?} + λ {:?} to {}", o, d, t_max
                     );
                     let exact = SlabRay::new(o, d);

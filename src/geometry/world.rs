@@ -597,7 +597,7 @@ impl World {
             // Always inlined: left a call (the three uses of the test were too many
             // for the inliner), each primitive tested paid for it. Render instructions
             // −2.4 % on spheres-1k, −3.4 % on cubes-10k; trace −2.6 % on spheres-100k.
-            None => self.bvh.first_found(
+            None => self.bvh.any(
                 ray,
                 t_min,
                 t_max,
