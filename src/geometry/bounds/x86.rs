@@ -392,7 +392,7 @@ fn pair(p: &[f32; 2]) -> __m256 {
 mod tests {
     use super::*;
     use crate::geometry::Ray;
-    use crate::geometry::bounds::{Aabb, lanes, lanes8};
+    use crate::geometry::bounds::{Aabb, SlabRay, lanes, lanes8};
     use glam::DVec3;
     use proptest::prelude::*;
 
@@ -543,6 +543,98 @@ mod tests {
                 );
                 prop_assert_eq!(hit, narrow[c].0);
                 prop_assert_eq!(near.to_array(), narrow[c].1.to_array());
+            }
+        }
+    }
+
+    /// A ray from an origin that `f32` cannot hold, within a rounding of one of box
+    /// `b`'s faces (just outside it or just inside), crossing it: the face at `axis`,
+    /// its lower one where `lower`, the origin `gap` from it (negative: inside), the
+    /// other coordinates at `at` of the way across the box, and limits `t_min` and
+    /// `t_max` about the crossing `λ` (scaled by `scale`), so that whether the box
+    /// is entered turns on where in its rounding the origin is taken.
+    fn near_face(
+        b: &Aabb,
+        axis: usize,
+        lower: bool,
+        gap: f64,
+        at: [f64; 2],
+        d: [f64; 3],
+        scale: [f64; 2],
+    ) -> (Ray, f64, f64) {
+        let (lo, hi) = (b.min.to_array(), b.max.to_array());
+        let mut o = [0.0; 3];
+        o[axis] = if lower {
+            lo[axis] - gap
+        } else {
+            hi[axis] + gap
+        };
+        for (u, k) in at.into_iter().zip([(axis + 1) % 3, (axis + 2) % 3]) {
+            o[k] = lo[k] + u * (hi[k] - lo[k]);
+        }
+        // Toward the face from outside, away from it from inside: the ray crosses it.
+        let mut d = d;
+        let inward = if lower { 1.0 } else { -1.0 };
+        d[axis] = d[axis].abs() * if gap > 0.0 { inward } else { -inward };
+        let crossing = gap.abs() / d[axis].abs();
+        let t_min = if gap > 0.0 { 0.0 } else { crossing * scale[0] };
+        (
+            Ray::new(DVec3::from(o), DVec3::from(d)),
+            t_min,
+            crossing * scale[1],
+        )
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(512))]
+
+        /// Rays from origins within a rounding of a box's face: the eight lanes (and
+        /// the two passes of four) never reject a box that the double-precision test
+        /// enters. The origin is taken rounded down or up by plane and direction, so
+        /// that the single-precision distances bound the exact ones; one rounded the
+        /// other way turns such a ray away.
+        #[test]
+        fn a_wide_node_keeps_boxes_entered_from_origins_f32_cannot_hold(
+            boxes in prop::array::uniform8(
+                (prop::array::uniform3(coord()), prop::array::uniform3(0.5f64..3.0))
+                    .prop_map(|(lo, size)| Aabb {
+                        min: DVec3::from(lo),
+                        max: DVec3::from(lo) + DVec3::from(size),
+                    })
+            ),
+            which in 0usize..8,
+            axis in 0usize..3,
+            lower in any::<bool>(),
+            gap in prop_oneof![1e-12f64..1e-8, -1e-8f64..-1e-12],
+            at in prop::array::uniform2(0.05f64..0.95),
+            d in prop::array::uniform3(dir()),
+            scale in (0.0f64..0.9, prop_oneof![1.5f64..4.0, 4.0f64..1e3]),
+        ) {
+            let (ray, t_min, t_max) =
+                near_face(&boxes[which], axis, lower, gap, at, d, [scale.0, scale.1]);
+            let exact = SlabRay::new(ray.origin, ray.dir);
+            let four = SlabRay4::splat(&ray).expect("no zero direction component");
+            let mut planes = [[0f32; 8]; 6];
+            for (c, b) in boxes.iter().enumerate() {
+                for (k, x) in super::super::box32(b).into_iter().enumerate() {
+                    planes[k][c] = x;
+                }
+            }
+            let (t_min32, t_max32) = (t_min as f32, t_max as f32);
+            let two = four.enter_wide(&planes, t_min32, t_max32);
+            let one = Avx2::detect()
+                .map(|avx2| avx2.splat_wide(&four).enter_wide(&planes, t_min32, t_max32));
+            prop_assert!(
+                exact.enter(boxes[which].min, boxes[which].max, t_min, t_max).is_some(),
+                "the ray crosses box {}'s face within its limits", which
+            );
+            for (c, b) in boxes.iter().enumerate() {
+                if exact.enter(b.min, b.max, t_min, t_max).is_some() {
+                    prop_assert_eq!(two >> c & 1, 1, "two passes, box {}", c);
+                    if let Some(one) = one {
+                        prop_assert_eq!(one >> c & 1, 1, "one pass, box {}", c);
+                    }
+                }
             }
         }
     }
