@@ -768,25 +768,32 @@ impl Bvh {
         ray: &Ray,
         t_min: f64,
         t_max: f64,
-        leaf: F,
+        mut leaf: F,
     ) -> Option<T> {
         // On x86-64, the wide tree is traversed where the processor has AVX2 (a node's
         // eight boxes in one pass), the binary tree on the few without: each caller
         // inlines two copies of the traversal and its leaves' tests, not three.
-        if !self.wide.is_empty()
-            && let Some(lanes) = SlabRay4::splat(ray)
-        {
+        if !self.wide.is_empty() {
             #[cfg(target_arch = "x86_64")]
             if let Some(avx2) = Avx2::detect() {
                 // Always inlined into `run`'s function, so that the traversal (its
-                // leaves' tests too) is compiled for AVX2.
-                return avx2.run(
+                // leaves' tests too) and the ray's lanes are compiled for AVX2; `None`
+                // where the ray's numbers do not fit them.
+                let wide = avx2.run(
                     #[inline(always)]
-                    || self.any_wide(&avx2.splat_wide(&lanes), t_min, t_max, leaf),
+                    || {
+                        let lanes = avx2.wide_ray(ray)?;
+                        Some(self.any_wide(&lanes, t_min, t_max, &mut leaf))
+                    },
                 );
+                if let Some(found) = wide {
+                    return found;
+                }
             }
             #[cfg(not(target_arch = "x86_64"))]
-            return self.any_wide(&lanes, t_min, t_max, leaf);
+            if let Some(lanes) = SlabRay4::splat(ray) {
+                return self.any_wide(&lanes, t_min, t_max, &mut leaf);
+            }
         }
         self.any_exact(&SlabRay::new(ray.origin, ray.dir), t_min, t_max, leaf)
     }

@@ -1,7 +1,8 @@
 //! A packet's box test in wider lanes: both children of a node for four rays in one
 //! pass of eight AVX2 lanes ([`SlabRay8`]), where [`SlabRay4`] takes two passes of
-//! four, and for eight rays in one pass of sixteen AVX-512 lanes ([`SlabRay16`]); and
-//! four f64 lanes in one AVX register ([`Lanes4`] of [`Avx2`]). Each is chosen at run
+//! four, and for eight rays in one pass of sixteen AVX-512 lanes ([`SlabRay16`]); a
+//! lone ray against a wide node's eight boxes in one pass ([`WideRay8`]); and four
+//! f64 lanes in one AVX register ([`Lanes4`] of [`Avx2`]). Each is chosen at run
 //! time, on processors that have it, so that the release binary stays portable; the
 //! operations are [`SlabRay4::enter`]'s (or one number's), lane for lane, so the
 //! results are the same bits.
@@ -10,7 +11,8 @@ use std::arch::x86_64::*;
 
 use wide::f32x4;
 
-use super::{BoxPair32, GROW, PairTest, PairTest8, SHRINK, SlabRay4, WideTest};
+use super::{BoxPair32, GROW, PairTest, PairTest8, SHRINK, SINGLE_LIMIT, SlabRay4, WideTest};
+use crate::geometry::Ray;
 use crate::geometry::arith::Lanes4;
 use wide::f32x8;
 
@@ -68,24 +70,71 @@ impl Avx2 {
 }
 
 impl Avx2 {
-    /// A lone ray (made by [`SlabRay4::splat`]) in eight lanes, to test a wide node's
-    /// eight boxes in one pass.
+    /// A lone ray in eight lanes, to test a wide node's eight boxes in one pass: the
+    /// numbers [`SlabRay4::splat`] gives it, lane for lane, or `None` where it refuses
+    /// the ray. Made in AVX2 lanes, the three axes at once (inside [`Avx2::run`]).
     #[inline(always)]
-    pub fn splat_wide(self, ray: &SlabRay4) -> WideRay8 {
-        let lane = |v: &[f32x4; 3]| {
-            // SAFETY: an `Avx2` exists only where the processor has AVX2 (`detect`).
-            v.map(|x| unsafe { _mm256_set1_ps(x.to_array()[0]) })
-        };
-        WideRay8 {
-            o_down: lane(&ray.o_down),
-            o_up: lane(&ray.o_up),
-            inv: lane(&ray.inv),
-        }
+    pub fn wide_ray(self, ray: &Ray) -> Option<WideRay8> {
+        // SAFETY: an `Avx2` exists only where the processor has AVX2 (`detect`).
+        unsafe { wide_ray(ray) }
     }
 }
 
+/// [`Avx2::wide_ray`]: the origin rounded down and up to `f32` as `round_down` and
+/// `round_up` round it, the direction to `f32` and its reciprocal, an axis a lane (the
+/// fourth lane's numbers pass every check and are not used).
+#[inline]
+#[target_feature(enable = "avx2")]
+fn wide_ray(ray: &Ray) -> Option<WideRay8> {
+    let (o, d) = (ray.origin, ray.dir);
+    let o = _mm256_setr_pd(o.x, o.y, o.z, 0.0);
+    let d = _mm256_cvtpd_ps(_mm256_setr_pd(d.x, d.y, d.z, 1.0));
+    // `fits` and `near`, ordered comparisons, so that a NaN fails.
+    let sign = _mm_set1_ps(-0.0);
+    let m = _mm_andnot_ps(sign, d);
+    let fits = _mm_and_ps(
+        _mm_cmp_ps::<_CMP_GE_OQ>(m, _mm_set1_ps(1e-30)),
+        _mm_cmp_ps::<_CMP_LE_OQ>(m, _mm_set1_ps(1e30)),
+    );
+    let near = _mm256_cmp_pd::<_CMP_LE_OQ>(
+        _mm256_andnot_pd(_mm256_set1_pd(-0.0), o),
+        _mm256_set1_pd(SINGLE_LIMIT),
+    );
+    if _mm_movemask_ps(fits) != 0b1111 || _mm256_movemask_pd(near) != 0b1111 {
+        return None;
+    }
+    let inv = _mm_div_ps(_mm_set1_ps(1.0), d);
+    // Rounded to nearest, then a step toward −∞ (down) or +∞ (up) where that went
+    // past the coordinate: the step is −1 on a positive number's bits, +1 on a
+    // negative one's (a zero takes the coordinate's sign, so it steps the right way).
+    let y = _mm256_cvtpd_ps(o);
+    let back = _mm256_cvtps_pd(y);
+    let low_words = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
+    let words = |m: __m256d| {
+        _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(
+            _mm256_castpd_si256(m),
+            low_words,
+        ))
+    };
+    let above = words(_mm256_cmp_pd::<_CMP_GT_OQ>(back, o));
+    let below = words(_mm256_cmp_pd::<_CMP_LT_OQ>(back, o));
+    let bits = _mm_castps_si128(y);
+    let step = _mm_or_si128(_mm_srai_epi32::<31>(bits), _mm_set1_epi32(1));
+    let down = _mm_castsi128_ps(_mm_sub_epi32(bits, _mm_and_si128(above, step)));
+    let up = _mm_castsi128_ps(_mm_add_epi32(bits, _mm_and_si128(below, step)));
+    let lanes = |v: __m128| {
+        let v = _mm256_castps128_ps256(v);
+        [0, 1, 2].map(|a| _mm256_permutevar8x32_ps(v, _mm256_set1_epi32(a)))
+    };
+    Some(WideRay8 {
+        o_down: lanes(down),
+        o_up: lanes(up),
+        inv: lanes(inv),
+    })
+}
+
 /// One ray in eight AVX2 lanes, against a wide node's eight boxes. Made only by
-/// [`Avx2::splat_wide`], so only where the processor has AVX2.
+/// [`Avx2::wide_ray`], so only where the processor has AVX2.
 #[derive(Debug, Clone, Copy)]
 pub struct WideRay8 {
     o_down: [__m256; 3],
@@ -483,6 +532,7 @@ mod tests {
                 // Nothing to compare on a processor without AVX2.
                 return Ok(());
             };
+            let wide = avx2.wide_ray(&ray).expect("no zero direction component");
             let mut planes = [[0f32; 8]; 6];
             for (c, b) in boxes.iter().enumerate() {
                 for (k, x) in super::super::box32(b).into_iter().enumerate() {
@@ -490,7 +540,7 @@ mod tests {
                 }
             }
             let (t_min, t_max) = (t_min as f32, t_max as f32);
-            let one = avx2.splat_wide(&four).enter_wide(&planes, t_min, t_max);
+            let one = wide.enter_wide(&planes, t_min, t_max);
             prop_assert_eq!(one, four.enter_wide(&planes, t_min, t_max));
             // And each box's bit is `enter`'s of that box alone.
             for (c, b) in boxes.iter().enumerate() {
@@ -622,8 +672,10 @@ mod tests {
             }
             let (t_min32, t_max32) = (t_min as f32, t_max as f32);
             let two = four.enter_wide(&planes, t_min32, t_max32);
-            let one = Avx2::detect()
-                .map(|avx2| avx2.splat_wide(&four).enter_wide(&planes, t_min32, t_max32));
+            let one = Avx2::detect().map(|avx2| {
+                let wide = avx2.wide_ray(&ray).expect("no zero direction component");
+                wide.enter_wide(&planes, t_min32, t_max32)
+            });
             prop_assert!(
                 exact.enter(boxes[which].min, boxes[which].max, t_min, t_max).is_some(),
                 "the ray crosses box {}'s face within its limits", which
@@ -634,6 +686,59 @@ mod tests {
                     if let Some(one) = one {
                         prop_assert_eq!(one >> c & 1, 1, "one pass, box {}", c);
                     }
+                }
+            }
+        }
+    }
+
+    /// Numbers of every kind a coordinate can hold: ordinary ones, those `f32` holds
+    /// exactly and those it does not, zeros of either sign, subnormal and huge ones,
+    /// the single-precision test's limits and about them, infinities and NaN.
+    fn any_number() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            20 => -8.0f64..8.0,
+            10 => (-64i32..64).prop_map(|c| c as f64 * 0.125),
+            1 => Just(0.0),
+            1 => Just(-0.0),
+            1 => prop_oneof![-1e-35f64..1e-35, -1e-39f64..1e-39, -1e-300f64..1e-300, Just(5e-324)],
+            1 => prop_oneof![Just(1e30), Just(-1e30), Just(1.000_000_1e30), -1e40f64..1e40],
+            // About the limits of a direction's magnitude, 10⁻³⁰ and 10³⁰ in `f32`.
+            1 => prop_oneof![1e-31f64..1e-29, -1e-29f64..-1e-31, 1e29f64..1e31, -1e31f64..-1e29],
+            1 => prop_oneof![Just(f64::INFINITY), Just(f64::NEG_INFINITY), Just(f64::NAN)],
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2048))]
+
+        /// A lone ray made in AVX2 lanes holds [`SlabRay4::splat`]'s numbers in every
+        /// lane, bit for bit, and is refused where that refuses it.
+        #[test]
+        fn a_wide_ray_is_the_splat_rays_numbers_in_every_lane(
+            origin in prop::array::uniform3(any_number()),
+            dir in prop::array::uniform3(any_number()),
+        ) {
+            let Some(avx2) = Avx2::detect() else {
+                // Nothing to compare on a processor without AVX2.
+                return Ok(());
+            };
+            let ray = Ray::new(DVec3::from(origin), DVec3::from(dir));
+            let four = SlabRay4::splat(&ray);
+            let wide = avx2.wide_ray(&ray);
+            prop_assert_eq!(four.is_some(), wide.is_some());
+            let (Some(four), Some(wide)) = (four, wide) else {
+                return Ok(());
+            };
+            let bits8 = |v: &[__m256; 3]| v.map(|v| bytemuck::cast::<__m256, [f32; 8]>(v).map(f32::to_bits));
+            let bits4 = |v: &[f32x4; 3]| v.map(|v| [v.to_array(); 2].concat().iter().map(|x| x.to_bits()).collect::<Vec<_>>());
+            for (name, w, f) in [
+                ("o_down", &wide.o_down, &four.o_down),
+                ("o_up", &wide.o_up, &four.o_up),
+                ("inv", &wide.inv, &four.inv),
+            ] {
+                let (w, f) = (bits8(w), bits4(f));
+                for a in 0..3 {
+                    prop_assert_eq!(&w[a][..], &f[a][..], "{} axis {}", name, a);
                 }
             }
         }
