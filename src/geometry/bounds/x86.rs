@@ -461,6 +461,18 @@ mod tests {
             })
     }
 
+    /// A wide node's rows for `boxes`, each rounded outward as the tree rounds it:
+    /// `planes[k][c]` is coordinate `k` of box `c` in [`Box32`]'s order.
+    fn wide_planes(boxes: &[Aabb; 8]) -> [[f32; 8]; 6] {
+        let mut planes = [[0f32; 8]; 6];
+        for (c, b) in boxes.iter().enumerate() {
+            for (k, x) in super::super::box32(b).into_iter().enumerate() {
+                planes[k][c] = x;
+            }
+        }
+        planes
+    }
+
     fn dir() -> impl Strategy<Value = f64> {
         prop_oneof![
             Just(1.0),
@@ -533,12 +545,7 @@ mod tests {
                 return Ok(());
             };
             let wide = avx2.wide_ray(&ray).expect("no zero direction component");
-            let mut planes = [[0f32; 8]; 6];
-            for (c, b) in boxes.iter().enumerate() {
-                for (k, x) in super::super::box32(b).into_iter().enumerate() {
-                    planes[k][c] = x;
-                }
-            }
+            let planes = wide_planes(&boxes);
             let (t_min, t_max) = (t_min as f32, t_max as f32);
             let one = wide.enter_wide(&planes, t_min, t_max);
             prop_assert_eq!(one, four.enter_wide(&planes, t_min, t_max));
@@ -664,12 +671,7 @@ mod tests {
                 near_face(&boxes[which], axis, lower, gap, at, d, [scale.0, scale.1]);
             let exact = SlabRay::new(ray.origin, ray.dir);
             let four = SlabRay4::splat(&ray).expect("no zero direction component");
-            let mut planes = [[0f32; 8]; 6];
-            for (c, b) in boxes.iter().enumerate() {
-                for (k, x) in super::super::box32(b).into_iter().enumerate() {
-                    planes[k][c] = x;
-                }
-            }
+            let planes = wide_planes(&boxes);
             let (t_min32, t_max32) = (t_min as f32, t_max as f32);
             let two = four.enter_wide(&planes, t_min32, t_max32);
             let one = Avx2::detect().map(|avx2| {
