@@ -97,9 +97,45 @@ impl Write for OutputFile {
         }
     }
 
+    fn write_vectored(&mut self, bufs: &[io::IoSlice<'_>]) -> io::Result<usize> {
+        let mut t = self.target()?;
+        let Target { file, head } = &mut *t;
+        match head {
+            Some(head) if head.len() < HEAD => {
+                let Some(buf) = bufs.iter().find(|b| !b.is_empty()) else {
+                    return Ok(0);
+                };
+                let n = (HEAD - head.len()).min(buf.len());
+                head.extend_from_slice(&buf[..n]);
+                Ok(n)
+            }
+            _ => file.write_vectored(bufs),
+        }
+    }
+
     fn flush(&mut self) -> io::Result<()> {
         self.target()?.file.flush()
     }
+}
+
+/// Writes every byte of `bufs`, in order, in as few calls as `out` takes them
+/// (`Write::write_all_vectored` is not stable): a writer that takes one buffer a call,
+/// as `Write`'s default does, still gets them all.
+pub fn write_all_vectored<W: Write + ?Sized>(
+    out: &mut W,
+    mut bufs: &mut [io::IoSlice<'_>],
+) -> io::Result<()> {
+    // Leading empty buffers dropped, so that a call never writes nothing.
+    io::IoSlice::advance_slices(&mut bufs, 0);
+    while !bufs.is_empty() {
+        match out.write_vectored(bufs) {
+            Ok(0) => return Err(io::ErrorKind::WriteZero.into()),
+            Ok(n) => io::IoSlice::advance_slices(&mut bufs, n),
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -137,6 +173,76 @@ mod tests {
                 "{n} bytes over the last"
             );
         }
+    }
+
+    #[test]
+    fn vectored_writes_give_the_bytes_single_writes_give() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("out.bin");
+        // Pieces of every size about the held-back head: each call may end inside
+        // the head, across its end or beyond it.
+        for (k, n) in [50_000, 20_000, HEAD, HEAD + 1, 10, 0]
+            .into_iter()
+            .enumerate()
+        {
+            let data = bytes(n, k as u8);
+            let mut pieces = Vec::new();
+            let mut rest = &data[..];
+            for size in [700, 1, 0, 5000, 3000].into_iter().cycle() {
+                if rest.is_empty() {
+                    break;
+                }
+                let (piece, after) = rest.split_at(size.min(rest.len()));
+                pieces.push(io::IoSlice::new(piece));
+                rest = after;
+            }
+            let mut out = OutputFile::create(&path).unwrap();
+            for group in pieces.chunks_mut(7) {
+                write_all_vectored(&mut out, group).unwrap();
+            }
+            out.commit().unwrap();
+            drop(out);
+            assert!(std::fs::read(&path).unwrap() == data, "{n} bytes");
+        }
+    }
+
+    /// Takes at most `most` bytes a call, of the first buffer only (`Write`'s
+    /// default `write_vectored`), or none at all.
+    struct Trickle {
+        got: Vec<u8>,
+        most: usize,
+    }
+
+    impl Write for Trickle {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            let n = buf.len().min(self.most);
+            self.got.extend_from_slice(&buf[..n]);
+            Ok(n)
+        }
+
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn every_byte_is_written_by_a_writer_that_takes_a_little_at_a_time() {
+        let data = bytes(10_000, 4);
+        let mut pieces: Vec<io::IoSlice<'_>> = data.chunks(333).map(io::IoSlice::new).collect();
+        let mut out = Trickle {
+            got: Vec::new(),
+            most: 100,
+        };
+        write_all_vectored(&mut out, &mut pieces).unwrap();
+        assert!(out.got == data);
+        // A writer that takes nothing is an error, not a loop.
+        let mut stuck = Trickle {
+            got: Vec::new(),
+            most: 0,
+        };
+        let mut pieces = [io::IoSlice::new(&data)];
+        let e = write_all_vectored(&mut stuck, &mut pieces).unwrap_err();
+        assert_eq!(e.kind(), io::ErrorKind::WriteZero);
     }
 
     #[test]

@@ -8,6 +8,7 @@
 use std::io::{self, Write};
 use std::sync::{Arc, Mutex};
 
+use super::file::write_all_vectored;
 use super::handoff::Handoff;
 use super::rows::{PIECE_BYTES, QUEUED_TILES, RowAssembler};
 use crate::format::npy::{NPY_RECORD_BYTES, npy_header, npy_record_bytes};
@@ -94,12 +95,14 @@ impl<W: Write + Send> HitSink<W> {
             .push_reclaiming(
                 tile,
                 |_, _, segments| {
-                    for seg in segments {
-                        for piece in seg.chunks(PIECE_BYTES / NPY_RECORD_BYTES) {
-                            out.write_all(piece.as_flattened())?;
-                        }
-                    }
-                    Ok::<(), io::Error>(())
+                    // A row in one call where the writer takes several buffers (a
+                    // file), straight from the tiles' records: no copy into a buffer.
+                    let mut pieces: Vec<io::IoSlice<'_>> = segments
+                        .iter()
+                        .flat_map(|seg| seg.chunks(PIECE_BYTES / NPY_RECORD_BYTES))
+                        .map(|piece| io::IoSlice::new(piece.as_flattened()))
+                        .collect();
+                    write_all_vectored(out, &mut pieces)
                 },
                 |pixels| {
                     if let Ok(mut spare) = self.npy.spare.lock()
