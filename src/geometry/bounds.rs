@@ -362,11 +362,16 @@ const SINGLE_LIMIT: f64 = 1e30;
 const SHRINK: f32 = 1.0 - 1.0 / (1u32 << 20) as f32;
 const GROW: f32 = 1.0 + 1.0 / (1u32 << 20) as f32;
 
+/// The magnitudes a direction component, rounded to `f32`, may have for the
+/// single-precision test (see [`SlabRay4::new`]).
+const DIR_SMALLEST: f32 = 1e-30;
+const DIR_LARGEST: f32 = 1e30;
+
 /// Whether every direction component of every lane, rounded to `f32`, is of magnitude
-/// within [10⁻³⁰, 10³⁰] (see [`SlabRay4::new`]); written so that a NaN fails too.
+/// within [`DIR_SMALLEST`, `DIR_LARGEST`]; written so that a NaN fails too.
 #[inline(always)]
 fn fits(d: &[f32x4; 3]) -> bool {
-    let (small, large) = (f32x4::splat(1e-30), f32x4::splat(1e30));
+    let (small, large) = (f32x4::splat(DIR_SMALLEST), f32x4::splat(DIR_LARGEST));
     d.iter().all(|d| {
         let m = d.abs();
         (m.simd_ge(small) & m.simd_le(large)).to_bitmask() == 0b1111
@@ -477,7 +482,8 @@ impl SlabRay4 {
         let d = ray.dir.to_array().map(|d| d as f32);
         // The three axes' reciprocals in one division, each then in every lane: the
         // same numbers as dividing each axis's four copies, in a third of the divisions
-        // (every lone shadow ray through a wide tree makes them).
+        // (a lone shadow ray through a wide tree makes them where the processor has no
+        // AVX2; `Avx2::wide_ray` gives these numbers too).
         let [x, y, z, _] = (f32x4::splat(1.0) / f32x4::new([d[0], d[1], d[2], 1.0])).to_array();
         SlabRay4::shared(d.map(f32x4::splat), [x, y, z].map(f32x4::splat), ray.origin)
     }

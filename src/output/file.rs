@@ -83,31 +83,32 @@ impl OutputFile {
     }
 }
 
+/// Holds back what of `buf` the first page still has room for; the bytes taken.
+fn hold(head: &mut Vec<u8>, buf: &[u8]) -> usize {
+    let n = (HEAD - head.len()).min(buf.len());
+    head.extend_from_slice(&buf[..n]);
+    n
+}
+
 impl Write for OutputFile {
     fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
         let mut t = self.target()?;
         let Target { file, head } = &mut *t;
         match head {
-            Some(head) if head.len() < HEAD => {
-                let n = (HEAD - head.len()).min(buf.len());
-                head.extend_from_slice(&buf[..n]);
-                Ok(n)
-            }
+            Some(head) if head.len() < HEAD => Ok(hold(head, buf)),
             _ => file.write(buf),
         }
     }
 
+    /// While the first page is held back, the first buffer with bytes (as `write`
+    /// takes it); then every buffer in one call.
     fn write_vectored(&mut self, bufs: &[io::IoSlice<'_>]) -> io::Result<usize> {
         let mut t = self.target()?;
         let Target { file, head } = &mut *t;
         match head {
             Some(head) if head.len() < HEAD => {
-                let Some(buf) = bufs.iter().find(|b| !b.is_empty()) else {
-                    return Ok(0);
-                };
-                let n = (HEAD - head.len()).min(buf.len());
-                head.extend_from_slice(&buf[..n]);
-                Ok(n)
+                let first = bufs.iter().find(|b| !b.is_empty());
+                Ok(first.map_or(0, |buf| hold(head, buf)))
             }
             _ => file.write_vectored(bufs),
         }

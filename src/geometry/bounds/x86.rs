@@ -11,7 +11,10 @@ use std::arch::x86_64::*;
 
 use wide::f32x4;
 
-use super::{BoxPair32, GROW, PairTest, PairTest8, SHRINK, SINGLE_LIMIT, SlabRay4, WideTest};
+use super::{
+    BoxPair32, DIR_LARGEST, DIR_SMALLEST, GROW, PairTest, PairTest8, SHRINK, SINGLE_LIMIT,
+    SlabRay4, WideTest,
+};
 use crate::geometry::Ray;
 use crate::geometry::arith::Lanes4;
 use wide::f32x8;
@@ -93,8 +96,8 @@ fn wide_ray(ray: &Ray) -> Option<WideRay8> {
     let sign = _mm_set1_ps(-0.0);
     let m = _mm_andnot_ps(sign, d);
     let fits = _mm_and_ps(
-        _mm_cmp_ps::<_CMP_GE_OQ>(m, _mm_set1_ps(1e-30)),
-        _mm_cmp_ps::<_CMP_LE_OQ>(m, _mm_set1_ps(1e30)),
+        _mm_cmp_ps::<_CMP_GE_OQ>(m, _mm_set1_ps(DIR_SMALLEST)),
+        _mm_cmp_ps::<_CMP_LE_OQ>(m, _mm_set1_ps(DIR_LARGEST)),
     );
     let near = _mm256_cmp_pd::<_CMP_LE_OQ>(
         _mm256_andnot_pd(_mm256_set1_pd(-0.0), o),
