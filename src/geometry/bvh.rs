@@ -734,31 +734,55 @@ impl Bvh {
     /// answer is the same.
     // The primitive is returned, not written by `leaf` into a variable of the
     // caller's: such a variable would live in memory across the call into the
-    // traversal compiled for AVX2, on every call, those that never take it too. A
-    // loop, not `Iterator::find`: that was left a call, and the leaf function with it.
-    #[allow(clippy::manual_find)]
+    // traversal compiled for AVX2, on every call, those that never take it too.
     #[inline]
     pub fn any<F: FnMut(u32) -> bool>(
         &self,
         ray: &Ray,
         t_min: f64,
         t_max: f64,
-        mut leaf: F,
+        leaf: F,
     ) -> Option<u32> {
-        self.any_by_leaf(
-            ray,
-            t_min,
-            t_max,
-            #[inline(always)]
-            move |prims| {
-                for &p in prims {
-                    if leaf(p) {
-                        return Some(p);
-                    }
-                }
-                None
-            },
-        )
+        self.any_by_leaf(ray, t_min, t_max, first_blocker(leaf))
+    }
+
+    /// [`Bvh::any`] for a caller already compiled for AVX2 (inside [`Avx2::run`]): the
+    /// wide tree's traversal is inlined into it, with no call of its own. A loop of
+    /// shadow rays then pays for entering AVX2 code once, not once a ray
+    /// ([`World::occluded_each`](super::world::World::occluded_each)).
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    pub fn any_in_avx2<F: FnMut(u32) -> bool>(
+        &self,
+        avx2: Avx2,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        leaf: F,
+    ) -> Option<u32> {
+        let mut leaf = first_blocker(leaf);
+        if !self.wide.is_empty()
+            && let Some(found) = self.any_wide_avx2(avx2, ray, t_min, t_max, &mut leaf)
+        {
+            return found;
+        }
+        self.any_exact(&SlabRay::new(ray.origin, ray.dir), t_min, t_max, leaf)
+    }
+
+    /// [`Bvh::any_wide`] with the ray's lanes made in AVX2 (so for a caller compiled for
+    /// it), or `None` where its numbers do not fit them.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn any_wide_avx2<T, F: FnMut(&[u32]) -> Option<T>>(
+        &self,
+        avx2: Avx2,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        leaf: &mut F,
+    ) -> Option<Option<T>> {
+        let lanes = avx2.wide_ray(ray)?;
+        Some(self.any_wide(&lanes, t_min, t_max, leaf))
     }
 
     /// [`Bvh::any`], a leaf at a time: the first of `leaf(prims)` over the leaves entered
@@ -782,10 +806,7 @@ impl Bvh {
                 // where the ray's numbers do not fit them.
                 let wide = avx2.run(
                     #[inline(always)]
-                    || {
-                        let lanes = avx2.wide_ray(ray)?;
-                        Some(self.any_wide(&lanes, t_min, t_max, &mut leaf))
-                    },
+                    || self.any_wide_avx2(avx2, ray, t_min, t_max, &mut leaf),
                 );
                 if let Some(found) = wide {
                     return found;
@@ -923,6 +944,23 @@ impl Bvh {
             None::<()>
         });
         out
+    }
+}
+
+/// A leaf's test for [`Bvh::any`] from a primitive's, `leaf(prim)`: the first of the
+/// leaf's primitives for which it is true.
+// A loop, not `Iterator::find`: that was left a call, and the leaf function with it.
+#[allow(clippy::manual_find)]
+#[inline(always)]
+fn first_blocker<F: FnMut(u32) -> bool>(mut leaf: F) -> impl FnMut(&[u32]) -> Option<u32> {
+    #[inline(always)]
+    move |prims| {
+        for &p in prims {
+            if leaf(p) {
+                return Some(p);
+            }
+        }
+        None
     }
 }
 

@@ -573,6 +573,53 @@ impl World {
         t_max: f64,
         hint: &mut ShadowHint,
     ) -> bool {
+        self.occluded_through(Dispatched, ray, t_min, t_max, hint)
+    }
+
+    /// [`World::occluded_hinted`] for the shadow rays of `lanes` (lanes of a packet),
+    /// one after another, each within `(t_min, t_max[lane])`, `hint` carried from each
+    /// to the next as from call to call: the bit set of those blocked.
+    ///
+    /// On x86-64 with AVX2 the loop is one function compiled for it, each ray's tests
+    /// and the tree's traversal inlined into it: a light's shadow rays of a packet
+    /// make one call, where each ray made two (the world's test, then the traversal's
+    /// AVX2 code), each saving and restoring registers and setting up its frame.
+    pub fn occluded_each(
+        &self,
+        rays: &[Ray; 8],
+        lanes: u32,
+        t_min: f64,
+        t_max: &[f64; 8],
+        hint: &mut ShadowHint,
+    ) -> u32 {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(avx2) = Avx2::detect() {
+            return avx2.run(
+                #[inline(always)]
+                || {
+                    lanes_where(
+                        lanes,
+                        #[inline(always)]
+                        |k| self.occluded_through(avx2, &rays[k], t_min, t_max[k], hint),
+                    )
+                },
+            );
+        }
+        lanes_where(lanes, |k| {
+            self.occluded_hinted(&rays[k], t_min, t_max[k], hint)
+        })
+    }
+
+    /// [`World::occluded_hinted`], reaching the tree by `tree`.
+    #[inline(always)]
+    fn occluded_through<W: TreeAny>(
+        &self,
+        tree: W,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        hint: &mut ShadowHint,
+    ) -> bool {
         // A shadow ray starts off a surface: its origin is carried into each object's
         // space, not compared with the viewpoint first (see `World::closest8`'s
         // `view`): render instructions −0.5 % on spheres-1k and spheres-100k.
@@ -597,7 +644,8 @@ impl World {
             // Always inlined: left a call (the three uses of the test were too many
             // for the inliner), each primitive tested paid for it. Render instructions
             // −2.4 % on spheres-1k, −3.4 % on cubes-10k; trace −2.6 % on spheres-100k.
-            None => self.bvh.any(
+            None => tree.any(
+                &self.bvh,
                 ray,
                 t_min,
                 t_max,
@@ -764,6 +812,54 @@ pub type SharedWorld = Arc<World>;
 /// The object that blocked the last of a run of shadow rays, if one did, for
 /// [`World::occluded_hinted`] to test first; the default is none.
 ///
+/// How a shadow test reaches the world's tree: through [`Bvh::any`] ([`Dispatched`]),
+/// which enters code compiled for AVX2 itself where the processor has it, or from code
+/// already compiled for it (an [`Avx2`], [`Bvh::any_in_avx2`]).
+trait TreeAny: Copy {
+    /// The first primitive found that `leaf` says blocks the ray ([`Bvh::any`]).
+    fn any<F: FnMut(u32) -> bool>(
+        self,
+        bvh: &Bvh,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        leaf: F,
+    ) -> Option<u32>;
+}
+
+/// [`Bvh::any`] from code compiled for any processor.
+#[derive(Debug, Clone, Copy)]
+struct Dispatched;
+
+impl TreeAny for Dispatched {
+    #[inline(always)]
+    fn any<F: FnMut(u32) -> bool>(
+        self,
+        bvh: &Bvh,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        leaf: F,
+    ) -> Option<u32> {
+        bvh.any(ray, t_min, t_max, leaf)
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl TreeAny for Avx2 {
+    #[inline(always)]
+    fn any<F: FnMut(u32) -> bool>(
+        self,
+        bvh: &Bvh,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        leaf: F,
+    ) -> Option<u32> {
+        bvh.any_in_avx2(self, ray, t_min, t_max, leaf)
+    }
+}
+
 /// One 32-bit word, the object's index plus one (0 for none). As an `Option<u32>`,
 /// written by the world in two stores (its tag, then the index) and read back by the
 /// shader in one load, every shadow ray's return waited until both stores were written

@@ -338,6 +338,20 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                     let alone = active >> k & 1 == 1 && r.world.occluded(ray, 1e-9, reach[k]);
                     assert_eq!(blocked >> k & 1 == 1, alone, "seed {seed} lane {k}");
                 }
+                // One after another with a hint carried from each to the next (a lone
+                // ray's test, inlined into one loop), the same answers, and the hint
+                // left is the one the lone tests leave.
+                let given = ShadowHint::new(Some(rng.0 as u32 % r.world.len() as u32));
+                let (mut carried, mut each) = (given, given);
+                let in_turn = r
+                    .world
+                    .occluded_each(&packet, active, 1e-9, &reach, &mut carried);
+                for (k, ray) in packet.iter().enumerate() {
+                    let alone = active >> k & 1 == 1
+                        && r.world.occluded_hinted(ray, 1e-9, reach[k], &mut each);
+                    assert_eq!(in_turn >> k & 1 == 1, alone, "seed {seed} lane {k}");
+                }
+                assert_eq!(carried, each, "seed {seed}");
                 // And as secondary rays of some pixels: the lanes asked find what they
                 // find alone, the others nothing.
                 let found = r

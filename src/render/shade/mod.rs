@@ -22,7 +22,7 @@ use std::cell::Cell;
 
 use glam::DVec3;
 
-use crate::geometry::bounds::{lanes_of, lanes_where};
+use crate::geometry::bounds::lanes_of;
 use crate::geometry::{Hit, Ray, ShadowHint, Surface, Transform, World};
 use crate::scene::{Light, Material, Scene};
 
@@ -343,6 +343,22 @@ impl<'a> Shader<'a> {
             None => self.world.occluded(ray, SECONDARY_LAMBDA_MIN, t_max),
         }
     }
+
+    /// [`Shader::light_blocked`] for light `k`'s shadow rays `rays` of the lanes `cast`
+    /// from a packet's hits at depth 0, each within `t_max[lane]`, one after another
+    /// ([`World::occluded_each`]): the bit set of those blocked.
+    #[inline(always)]
+    fn lights_blocked(&self, k: usize, rays: &[Ray; 8], cast: u32, t_max: &[f64; 8]) -> u32 {
+        let kept = self.shadow_hints.first().and_then(|h| h.get(k));
+        // A light without a hint kept has one for the packet's rays alone.
+        let mut hint = kept.map(Cell::get).unwrap_or_default();
+        let blocked =
+            (self.world).occluded_each(rays, cast, SECONDARY_LAMBDA_MIN, t_max, &mut hint);
+        if let Some(kept) = kept {
+            kept.set(hint);
+        }
+        blocked
+    }
 }
 
 impl Shader<'_> {
@@ -491,9 +507,7 @@ impl Shader<'_> {
                 self.world
                     .occluded8(&t.shadow, t.cast, SECONDARY_LAMBDA_MIN, t.t_max)
             } else {
-                lanes_where(t.cast, |k| {
-                    self.light_blocked(j, 0, &t.shadow[k], t.t_max[k])
-                })
+                self.lights_blocked(j, &t.shadow, t.cast, &t.t_max)
             };
             for k in lanes_of(t.cast & !blocked) {
                 c[k] += t.lit[k];
