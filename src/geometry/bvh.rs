@@ -746,15 +746,14 @@ impl Bvh {
         self.any_by_leaf(ray, t_min, t_max, first_blocker(leaf))
     }
 
-    /// [`Bvh::any`] for a caller already compiled for AVX2 (inside [`Avx2::run`]): the
-    /// wide tree's traversal is inlined into it, with no call of its own. A loop of
-    /// shadow rays then pays for entering AVX2 code once, not once a ray
-    /// ([`World::occluded_each`](super::world::World::occluded_each)).
-    #[cfg(target_arch = "x86_64")]
+    /// [`Bvh::any`] with the ray's lanes for the wide tree made by the caller,
+    /// `lanes()` (`None` where its numbers do not fit them): nothing here enters code compiled for AVX2
+    /// by a call of its own, for a caller compiled for it that makes several rays'
+    /// lanes at once ([`World::occluded_each`](super::world::World::occluded_each)).
     #[inline(always)]
-    pub fn any_in_avx2<F: FnMut(u32) -> bool>(
+    pub fn any_prepared<W: WideTest, F: FnMut(u32) -> bool>(
         &self,
-        avx2: Avx2,
+        lanes: impl FnOnce() -> Option<W>,
         ray: &Ray,
         t_min: f64,
         t_max: f64,
@@ -762,27 +761,17 @@ impl Bvh {
     ) -> Option<u32> {
         let mut leaf = first_blocker(leaf);
         if !self.wide.is_empty()
-            && let Some(found) = self.any_wide_avx2(avx2, ray, t_min, t_max, &mut leaf)
+            && let Some(lanes) = lanes()
         {
-            return found;
+            return self.any_wide(&lanes, t_min, t_max, &mut leaf);
         }
         self.any_exact(&SlabRay::new(ray.origin, ray.dir), t_min, t_max, leaf)
     }
 
-    /// [`Bvh::any_wide`] with the ray's lanes made in AVX2 (so for a caller compiled for
-    /// it), or `None` where its numbers do not fit them.
-    #[cfg(target_arch = "x86_64")]
+    /// Whether the tree has a wide form ([`Bvh::any_prepared`] takes lanes for it).
     #[inline(always)]
-    fn any_wide_avx2<T, F: FnMut(&[u32]) -> Option<T>>(
-        &self,
-        avx2: Avx2,
-        ray: &Ray,
-        t_min: f64,
-        t_max: f64,
-        leaf: &mut F,
-    ) -> Option<Option<T>> {
-        let lanes = avx2.wide_ray(ray)?;
-        Some(self.any_wide(&lanes, t_min, t_max, leaf))
+    pub fn is_wide(&self) -> bool {
+        !self.wide.is_empty()
     }
 
     /// [`Bvh::any`], a leaf at a time: the first of `leaf(prims)` over the leaves entered
@@ -806,7 +795,10 @@ impl Bvh {
                 // where the ray's numbers do not fit them.
                 let wide = avx2.run(
                     #[inline(always)]
-                    || self.any_wide_avx2(avx2, ray, t_min, t_max, &mut leaf),
+                    || {
+                        let lanes = avx2.wide_ray(ray)?;
+                        Some(self.any_wide(&lanes, t_min, t_max, &mut leaf))
+                    },
                 );
                 if let Some(found) = wide {
                     return found;

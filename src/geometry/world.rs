@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use super::bounds::x86::Avx2;
 use super::{
     arith::{Arith, Eight, Lanes4, One, Portable},
-    bounds::{Aabb, SlabRay, SlabRay4, lanes_of, lanes_where},
+    bounds::{Aabb, SlabRay, SlabRay4, WideTest, lanes_of, lanes_where},
     bvh::Bvh,
     hit::{Hit, Probe, Surface},
     ray::{Ray, lanes3},
@@ -573,7 +573,19 @@ impl World {
         t_max: f64,
         hint: &mut ShadowHint,
     ) -> bool {
-        self.occluded_through(Dispatched, ray, t_min, t_max, hint)
+        self.occluded_through(Dispatched, ray, t_min, t_max, hint, || {
+            self.blocking_plane(ray, t_min, t_max)
+        })
+    }
+
+    /// The first plane (of the unbounded objects) hit within `(t_min, t_max)`, if any.
+    #[inline(always)]
+    fn blocking_plane(&self, ray: &Ray, t_min: f64, t_max: f64) -> Option<u32> {
+        // Off a surface (see `World::occluded_through`).
+        self.unbounded.iter().copied().find(|&i| {
+            self.intersect_unbounded(i, ray, false, t_min, t_max, &mut ())
+                .is_some()
+        })
     }
 
     /// [`World::occluded_hinted`] for the shadow rays of `lanes` (lanes of a packet),
@@ -583,7 +595,10 @@ impl World {
     /// On x86-64 with AVX2 the loop is one function compiled for it, each ray's tests
     /// and the tree's traversal inlined into it: a light's shadow rays of a packet
     /// make one call, where each ray made two (the world's test, then the traversal's
-    /// AVX2 code), each saving and restoring registers and setting up its frame.
+    /// AVX2 code), each saving and restoring registers and setting up its frame. What
+    /// does not depend on the hint is done for the eight rays at once, in lanes: the
+    /// planes' tests (`Solid::plane8`) and the rays' numbers for the wide tree
+    /// ([`Avx2::wide_rays`]).
     pub fn occluded_each(
         &self,
         rays: &[Ray; 8],
@@ -597,10 +612,27 @@ impl World {
             return avx2.run(
                 #[inline(always)]
                 || {
+                    let (planes, plane) =
+                        self.blocking_planes8(Eight(avx2), rays, lanes, t_min, t_max);
+                    let wide =
+                        (self.lone().is_none() && self.bvh.is_wide()).then(|| avx2.wide_rays(rays));
                     lanes_where(
                         lanes,
                         #[inline(always)]
-                        |k| self.occluded_through(avx2, &rays[k], t_min, t_max[k], hint),
+                        |k| {
+                            self.occluded_through(
+                                Prepared(
+                                    #[inline(always)]
+                                    || wide.as_ref().and_then(|w| w.lane(k)),
+                                ),
+                                &rays[k],
+                                t_min,
+                                t_max[k],
+                                hint,
+                                #[inline(always)]
+                                || (planes >> k & 1 == 1).then_some(plane[k]),
+                            )
+                        },
                     )
                 },
             );
@@ -610,7 +642,45 @@ impl World {
         })
     }
 
-    /// [`World::occluded_hinted`], reaching the tree by `tree`.
+    /// [`World::blocking_plane`] of each of the rays of `lanes` (off a surface), the
+    /// planes tested in lanes: the bit set of the lanes a plane blocks, and each one's
+    /// first.
+    #[inline(always)]
+    fn blocking_planes8<L: Lanes4>(
+        &self,
+        n: Eight<L>,
+        rays: &[Ray; 8],
+        lanes: u32,
+        t_min: f64,
+        t_max: &[f64; 8],
+    ) -> (u32, [u32; 8]) {
+        let (mut blocked, mut first) = (0, [0; 8]);
+        for &i in &self.unbounded {
+            let open = lanes & !blocked;
+            if open == 0 {
+                break;
+            }
+            let s = &self.solids[i as usize];
+            let hit = open
+                & if matches!(s.shape, Shape::Plane) {
+                    s.plane8(n, rays, false, t_min, t_max).0
+                } else {
+                    lanes_where(open, |k| {
+                        let r = &rays[k];
+                        self.intersect_unbounded(i, r, false, t_min, t_max[k], &mut ())
+                            .is_some()
+                    })
+                };
+            for k in lanes_of(hit) {
+                first[k] = i;
+            }
+            blocked |= hit;
+        }
+        (blocked, first)
+    }
+
+    /// [`World::occluded_hinted`], reaching the tree by `tree`, with `plane()` the
+    /// first plane that blocks the ray ([`World::blocking_plane`]).
     #[inline(always)]
     fn occluded_through<W: TreeAny>(
         &self,
@@ -619,6 +689,7 @@ impl World {
         t_min: f64,
         t_max: f64,
         hint: &mut ShadowHint,
+        plane: impl FnOnce() -> Option<u32>,
     ) -> bool {
         // A shadow ray starts off a surface: its origin is carried into each object's
         // space, not compared with the viewpoint first (see `World::closest8`'s
@@ -629,10 +700,7 @@ impl World {
         {
             return true;
         }
-        let plane = self.unbounded.iter().copied().find(|&i| {
-            self.intersect_unbounded(i, ray, from_view, t_min, t_max, &mut ())
-                .is_some()
-        });
+        let plane = plane();
         if plane.is_some() {
             *hint = ShadowHint::new(plane);
             return true;
@@ -809,12 +877,9 @@ impl World {
 /// A shared handle, as renders hold it.
 pub type SharedWorld = Arc<World>;
 
-/// The object that blocked the last of a run of shadow rays, if one did, for
-/// [`World::occluded_hinted`] to test first; the default is none.
-///
 /// How a shadow test reaches the world's tree: through [`Bvh::any`] ([`Dispatched`]),
-/// which enters code compiled for AVX2 itself where the processor has it, or from code
-/// already compiled for it (an [`Avx2`], [`Bvh::any_in_avx2`]).
+/// which makes the ray's lanes for the wide tree itself (in code compiled for AVX2,
+/// where the processor has it), or with lanes the caller made ([`Prepared`]).
 trait TreeAny: Copy {
     /// The first primitive found that `leaf` says blocks the ray ([`Bvh::any`]).
     fn any<F: FnMut(u32) -> bool>(
@@ -827,7 +892,7 @@ trait TreeAny: Copy {
     ) -> Option<u32>;
 }
 
-/// [`Bvh::any`] from code compiled for any processor.
+/// [`Bvh::any`], the ray's lanes made there.
 #[derive(Debug, Clone, Copy)]
 struct Dispatched;
 
@@ -845,8 +910,12 @@ impl TreeAny for Dispatched {
     }
 }
 
-#[cfg(target_arch = "x86_64")]
-impl TreeAny for Avx2 {
+/// [`Bvh::any_prepared`] with the ray's lanes made by the caller (`None` where they do
+/// not fit), when the tree asks for them.
+#[derive(Clone, Copy)]
+struct Prepared<L>(L);
+
+impl<W: WideTest, L: FnOnce() -> Option<W> + Copy> TreeAny for Prepared<L> {
     #[inline(always)]
     fn any<F: FnMut(u32) -> bool>(
         self,
@@ -856,10 +925,13 @@ impl TreeAny for Avx2 {
         t_max: f64,
         leaf: F,
     ) -> Option<u32> {
-        bvh.any_in_avx2(self, ray, t_min, t_max, leaf)
+        bvh.any_prepared(self.0, ray, t_min, t_max, leaf)
     }
 }
 
+/// The object that blocked the last of a run of shadow rays, if one did, for
+/// [`World::occluded_hinted`] to test first; the default is none.
+///
 /// One 32-bit word, the object's index plus one (0 for none). As an `Option<u32>`,
 /// written by the world in two stores (its tag, then the index) and read back by the
 /// shader in one load, every shadow ray's return waited until both stores were written
@@ -897,6 +969,53 @@ mod tests {
             assert_eq!(ShadowHint::new(Some(i)).object(), Some(i), "object {i}");
         }
         assert_eq!(ShadowHint::new(Some(u32::MAX)).object(), None);
+    }
+
+    /// A packet's shadow rays tested one after another leave the hint each leaves alone:
+    /// a ray that planes block names the first listed of them, whichever the loop over
+    /// the planes in lanes meets last.
+    #[test]
+    fn a_ray_blocked_by_planes_leaves_the_first_listed_as_its_hint() {
+        // Two floors, y = 0 and y = −1, and a sphere off to the side: a ray down from
+        // above crosses both floors, a ray up nothing.
+        let (floor, lower, ball) = (
+            Transform::default(),
+            Transform::translate(DVec3::new(0.0, -1.0, 0.0)),
+            Transform::translate(DVec3::new(10.0, 0.0, 0.0)),
+        );
+        let world = World::new([
+            (&Shape::Plane, &floor),
+            (&Shape::Plane, &lower),
+            (&Shape::Sphere, &ball),
+        ]);
+        let (up, down) = (
+            Ray::new(DVec3::Y, DVec3::Y),
+            Ray::new(DVec3::Y, DVec3::NEG_Y),
+        );
+        let reach = [10.0; 8];
+        for (rays, blocked) in [([up, down], 0b10), ([down, up], 0b01), ([down, down], 0b11)] {
+            let mut packet = [up; 8];
+            packet[..2].copy_from_slice(&rays);
+            let mut hint = ShadowHint::default();
+            assert_eq!(
+                world.occluded_each(&packet, 0b11, 1e-9, &reach, &mut hint),
+                blocked
+            );
+            let mut alone = ShadowHint::default();
+            for ray in &rays {
+                world.occluded_hinted(ray, 1e-9, 10.0, &mut alone);
+            }
+            assert_eq!(hint, alone, "{blocked:#b}");
+        }
+        let mut hint = ShadowHint::default();
+        world.occluded_each(
+            &[up, down, up, up, up, up, up, up],
+            0b11,
+            1e-9,
+            &reach,
+            &mut hint,
+        );
+        assert_eq!(hint.object(), Some(0), "the first floor listed");
     }
 
     proptest! {

@@ -352,6 +352,22 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                     assert_eq!(in_turn >> k & 1 == 1, alone, "seed {seed} lane {k}");
                 }
                 assert_eq!(carried, each, "seed {seed}");
+                // A lane at a time, the hint each ray leaves (the first plane that blocks
+                // it, the object the tree finds) is the lone test's.
+                let (mut carried, mut each) = (given, given);
+                for k in 0..8 {
+                    let alone = r
+                        .world
+                        .occluded_hinted(&packet[k], 1e-9, reach[k], &mut each);
+                    let lane = r
+                        .world
+                        .occluded_each(&packet, 1 << k, 1e-9, &reach, &mut carried);
+                    assert_eq!(
+                        (lane == 1 << k, carried),
+                        (alone, each),
+                        "seed {seed} lane {k}"
+                    );
+                }
                 // And as secondary rays of some pixels: the lanes asked find what they
                 // find alone, the others nothing.
                 let found = r

@@ -17,6 +17,7 @@ use super::{
 };
 use crate::geometry::Ray;
 use crate::geometry::arith::Lanes4;
+use crate::geometry::ray::lanes3;
 use wide::f32x8;
 
 /// A proof type that the processor has the instruction sets `$feature`, its `detect`,
@@ -134,6 +135,113 @@ fn wide_ray(ray: &Ray) -> Option<WideRay8> {
         o_up: lanes(up),
         inv: lanes(inv),
     })
+}
+
+impl Avx2 {
+    /// Eight rays' lanes for the wide tree, made together (inside [`Avx2::run`]): each
+    /// coordinate of the eight rays in one vector, so that the checks, the rounding and
+    /// the reciprocals take a few instructions for all eight where [`Avx2::wide_ray`]
+    /// takes them for one. [`WideRays8::lane`] gives each ray's, bit for bit what
+    /// `wide_ray` gives it.
+    #[inline(always)]
+    pub fn wide_rays(self, rays: &[Ray; 8]) -> WideRays8 {
+        // SAFETY: an `Avx2` exists only where the processor has AVX2 (`detect`).
+        unsafe { wide_rays(rays) }
+    }
+}
+
+/// [`Avx2::wide_rays`]: [`wide_ray`]'s operations, a ray a lane.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn wide_rays(rays: &[Ray; 8]) -> WideRays8 {
+    let (origin, dir) = (lanes3(rays, |r| r.origin), lanes3(rays, |r| r.dir));
+    let halves = |v: &[f64; 8]| {
+        let (lo, hi) = v.split_at(4);
+        // SAFETY: four `f64` each, read unaligned.
+        unsafe { [_mm256_loadu_pd(lo.as_ptr()), _mm256_loadu_pd(hi.as_ptr())] }
+    };
+    // A comparison's eight 64-bit answers as eight 32-bit ones, each half's in order.
+    let low_words = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
+    let words = |m: [__m256d; 2]| {
+        let w = m.map(|m| {
+            _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(
+                _mm256_castpd_si256(m),
+                low_words,
+            ))
+        });
+        _mm256_set_m128i(w[1], w[0])
+    };
+    let mut fits = 0xff;
+    let mut lanes = WideRays8 {
+        fits: 0,
+        o_down: [_mm256_setzero_ps(); 3],
+        o_up: [_mm256_setzero_ps(); 3],
+        inv: [_mm256_setzero_ps(); 3],
+    };
+    for a in 0..3 {
+        let (o, d) = (halves(&origin[a]), halves(&dir[a]));
+        let d = _mm256_set_m128(_mm256_cvtpd_ps(d[1]), _mm256_cvtpd_ps(d[0]));
+        let m = _mm256_andnot_ps(_mm256_set1_ps(-0.0), d);
+        fits &= _mm256_movemask_ps(_mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GE_OQ>(m, _mm256_set1_ps(DIR_SMALLEST)),
+            _mm256_cmp_ps::<_CMP_LE_OQ>(m, _mm256_set1_ps(DIR_LARGEST)),
+        ));
+        for (h, o) in o.iter().enumerate() {
+            let near = _mm256_cmp_pd::<_CMP_LE_OQ>(
+                _mm256_andnot_pd(_mm256_set1_pd(-0.0), *o),
+                _mm256_set1_pd(SINGLE_LIMIT),
+            );
+            fits &= _mm256_movemask_pd(near) << (4 * h) | !(0b1111 << (4 * h));
+        }
+        lanes.inv[a] = _mm256_div_ps(_mm256_set1_ps(1.0), d);
+        let y = o.map(|o| _mm256_cvtpd_ps(o));
+        let back = y.map(|y| _mm256_cvtps_pd(y));
+        let above = words([0, 1].map(|h| _mm256_cmp_pd::<_CMP_GT_OQ>(back[h], o[h])));
+        let below = words([0, 1].map(|h| _mm256_cmp_pd::<_CMP_LT_OQ>(back[h], o[h])));
+        let bits = _mm256_castps_si256(_mm256_set_m128(y[1], y[0]));
+        let step = _mm256_or_si256(_mm256_srai_epi32::<31>(bits), _mm256_set1_epi32(1));
+        lanes.o_down[a] =
+            _mm256_castsi256_ps(_mm256_sub_epi32(bits, _mm256_and_si256(above, step)));
+        lanes.o_up[a] = _mm256_castsi256_ps(_mm256_add_epi32(bits, _mm256_and_si256(below, step)));
+    }
+    lanes.fits = fits as u32 & 0xff;
+    lanes
+}
+
+/// Eight rays in AVX2 lanes, a ray a lane ([`Avx2::wide_rays`]), each to be tested
+/// alone against the wide tree ([`WideRays8::lane`]).
+#[derive(Debug, Clone, Copy)]
+pub struct WideRays8 {
+    /// The lanes whose rays' numbers fit the single-precision test.
+    fits: u32,
+    o_down: [__m256; 3],
+    o_up: [__m256; 3],
+    inv: [__m256; 3],
+}
+
+impl WideRays8 {
+    /// Ray `k`'s lanes for a wide node's test, [`Avx2::wide_ray`]'s numbers bit for
+    /// bit, or `None` where they do not fit (or `k` is not a lane).
+    #[inline(always)]
+    pub fn lane(&self, k: usize) -> Option<WideRay8> {
+        (k < 8 && self.fits >> k & 1 == 1).then(|| {
+            // SAFETY: a `WideRays8` exists only where the processor has AVX2 (`Avx2`).
+            unsafe { self.lane_avx2(k as i32) }
+        })
+    }
+
+    /// [`WideRays8::lane`] of a lane that fits, in AVX2.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn lane_avx2(&self, k: i32) -> WideRay8 {
+        let k = _mm256_set1_epi32(k);
+        let every = |v: &[__m256; 3]| v.map(|v| _mm256_permutevar8x32_ps(v, k));
+        WideRay8 {
+            o_down: every(&self.o_down),
+            o_up: every(&self.o_up),
+            inv: every(&self.inv),
+        }
+    }
 }
 
 /// One ray in eight AVX2 lanes, against a wide node's eight boxes. Made only by
@@ -746,6 +854,36 @@ mod tests {
                     prop_assert_eq!(&w[a][..], &f[a][..], "{} axis {}", name, a);
                 }
             }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(512))]
+
+        /// Eight rays made together hold, lane by lane, what each made alone holds, bit
+        /// for bit, and each is refused where alone it is.
+        #[test]
+        fn eight_rays_made_together_are_each_the_lone_rays_numbers(
+            numbers in prop::collection::vec(any_number(), 48),
+        ) {
+            let Some(avx2) = Avx2::detect() else {
+                return Ok(());
+            };
+            let at = |i: usize| DVec3::new(numbers[i], numbers[i + 1], numbers[i + 2]);
+            let rays: [Ray; 8] = std::array::from_fn(|k| Ray::new(at(6 * k), at(6 * k + 3)));
+            let eight = avx2.wide_rays(&rays);
+            let bits = |r: &WideRay8| {
+                [r.o_down, r.o_up, r.inv]
+                    .map(|v| v.map(|v| bytemuck::cast::<__m256, [f32; 8]>(v).map(f32::to_bits)))
+            };
+            for (k, ray) in rays.iter().enumerate() {
+                let (alone, together) = (avx2.wide_ray(ray), eight.lane(k));
+                prop_assert_eq!(alone.is_some(), together.is_some(), "ray {}", k);
+                if let (Some(alone), Some(together)) = (alone, together) {
+                    prop_assert_eq!(bits(&alone), bits(&together), "ray {}", k);
+                }
+            }
+            prop_assert!(eight.lane(8).is_none());
         }
     }
 }
