@@ -12,7 +12,7 @@ pub mod transform;
 pub mod world;
 
 pub use hit::{Face, Hit, Probe, Surface};
-pub use ray::Ray;
+pub use ray::{Ray, Rays8};
 pub use shapes::{CanonicalShape, Mesh, NeedsData, Shape, ShapeName};
 pub use transform::Transform;
 pub use world::{ShadowHint, World};

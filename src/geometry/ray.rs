@@ -52,6 +52,41 @@ pub const PRIMARY_LAMBDA_MIN: f64 = 1e-9;
 /// Below this `|Δ|` a ray is parallel to a face and the face is skipped (`docs/spec/shapes.md`).
 pub const PARALLEL_EPSILON: f64 = 1e-12;
 
+/// Eight rays coordinate by coordinate, each coordinate's eight side by side: a
+/// packet's shadow rays toward a light as its terms are computed (in lanes), read in
+/// lanes by the planes' test and the wide tree's set-up, a ray at a time by the rest.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rays8 {
+    /// The origins' coordinates: `origin[a][k]` is coordinate `a` of ray `k`'s origin.
+    pub origin: [[f64; 8]; 3],
+    /// The directions' coordinates, likewise.
+    pub dir: [[f64; 8]; 3],
+}
+
+impl Rays8 {
+    /// `rays`, coordinate by coordinate.
+    #[inline(always)]
+    pub fn from_rays(rays: &[Ray; 8]) -> Rays8 {
+        Rays8 {
+            origin: lanes3(rays, |r| r.origin),
+            dir: lanes3(rays, |r| r.dir),
+        }
+    }
+
+    /// Ray `k` (of the eight, `k < 8`).
+    #[inline(always)]
+    pub fn ray(&self, k: usize) -> Ray {
+        let at = |v: &[[f64; 8]; 3]| DVec3::new(v[0][k], v[1][k], v[2][k]);
+        Ray::new(at(&self.origin), at(&self.dir))
+    }
+
+    /// The eight rays.
+    #[inline(always)]
+    pub fn rays(&self) -> [Ray; 8] {
+        std::array::from_fn(|k| self.ray(k))
+    }
+}
+
 /// The vectors `v(ray)` of a packet's eight rays, coordinate by coordinate (each in
 /// lanes).
 #[inline(always)]
@@ -61,4 +96,30 @@ pub(crate) fn lanes3(rays: &[Ray; 8], v: impl Fn(&Ray) -> DVec3) -> [[f64; 8]; 3
         (c[0][k], c[1][k], c[2][k]) = v(ray).into();
     }
     c
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Eight rays taken apart coordinate by coordinate give each ray back, bit for bit
+    /// (a negative zero and a NaN too), in its lane.
+    #[test]
+    fn eight_rays_by_coordinate_give_each_ray_back() {
+        let rays: [Ray; 8] = std::array::from_fn(|k| {
+            let k = k as f64;
+            Ray::new(
+                DVec3::new(k, -0.0, 1.5 * k - 3.0),
+                DVec3::new(f64::NAN, 2.0 - k, 1e-300 * k),
+            )
+        });
+        let eight = Rays8::from_rays(&rays);
+        let bits = |r: &Ray| [r.origin.to_array(), r.dir.to_array()].map(|v| v.map(f64::to_bits));
+        for (k, ray) in rays.iter().enumerate() {
+            assert_eq!(bits(&eight.ray(k)), bits(ray), "ray {k}");
+            assert_eq!(eight.origin[2][k].to_bits(), ray.origin.z.to_bits());
+            assert_eq!(eight.dir[1][k].to_bits(), ray.dir.y.to_bits());
+        }
+        assert_eq!(eight.rays().map(|r| bits(&r)), rays.map(|r| bits(&r)));
+    }
 }

@@ -17,7 +17,7 @@ use super::{
     bounds::{Aabb, SlabRay, SlabRay4, WideTest, lanes_of, lanes_where},
     bvh::Bvh,
     hit::{Hit, Probe, Surface},
-    ray::{Ray, lanes3},
+    ray::{Ray, Rays8},
     shapes::{Shape, plane},
     transform::Transform,
 };
@@ -65,15 +65,15 @@ impl Solid {
     fn object_rays8<L: Lanes4>(
         &self,
         n: Eight<L>,
-        rays: &[Ray; 8],
+        rays: &Rays8,
         view: bool,
     ) -> ([[L::V; 2]; 3], [[L::V; 2]; 3]) {
         let m = &self.object_from_world;
-        let dir = n.carry_vector(&m.matrix3, n.load3(&lanes3(rays, |r| r.dir)));
+        let dir = n.carry_vector(&m.matrix3, n.load3(&rays.dir));
         let origin = if view {
             n.splat3(self.view_origin)
         } else {
-            n.carry_point(m, n.load3(&lanes3(rays, |r| r.origin)))
+            n.carry_point(m, n.load3(&rays.origin))
         };
         (origin, dir)
     }
@@ -95,7 +95,7 @@ impl Solid {
         self.shape.intersect_in_lanes8(
             n,
             #[inline(always)]
-            || self.object_rays8(n, rays, view),
+            || self.object_rays8(n, &Rays8::from_rays(rays), view),
             t_min,
             t_max,
         )
@@ -107,7 +107,7 @@ impl Solid {
     fn plane8<L: Lanes4>(
         &self,
         n: Eight<L>,
-        rays: &[Ray; 8],
+        rays: &Rays8,
         view: bool,
         t_min: f64,
         t_max: &[f64; 8],
@@ -491,7 +491,8 @@ impl World {
             let s = &self.solids[i as usize];
             if let Shape::Plane = s.shape {
                 let below = &best.below;
-                let (hit, lambda) = in_lanes!(n => s.plane8(n, rays, view, t_min, below));
+                let (hit, lambda) =
+                    in_lanes!(n => s.plane8(n, &Rays8::from_rays(rays), view, t_min, below));
                 for lane in lanes_of(active & hit) {
                     best.keep(lane, i, Some((lambda[lane], 0)), &mut limit[lane]);
                 }
@@ -601,7 +602,7 @@ impl World {
     /// ([`Avx2::wide_rays`]).
     pub fn occluded_each(
         &self,
-        rays: &[Ray; 8],
+        rays: &Rays8,
         lanes: u32,
         t_min: f64,
         t_max: &[f64; 8],
@@ -625,7 +626,7 @@ impl World {
                                     #[inline(always)]
                                     || wide.as_ref().and_then(|w| w.lane(k)),
                                 ),
-                                &rays[k],
+                                &rays.ray(k),
                                 t_min,
                                 t_max[k],
                                 hint,
@@ -638,7 +639,7 @@ impl World {
             );
         }
         lanes_where(lanes, |k| {
-            self.occluded_hinted(&rays[k], t_min, t_max[k], hint)
+            self.occluded_hinted(&rays.ray(k), t_min, t_max[k], hint)
         })
     }
 
@@ -649,7 +650,7 @@ impl World {
     fn blocking_planes8<L: Lanes4>(
         &self,
         n: Eight<L>,
-        rays: &[Ray; 8],
+        rays: &Rays8,
         lanes: u32,
         t_min: f64,
         t_max: &[f64; 8],
@@ -666,7 +667,7 @@ impl World {
                     s.plane8(n, rays, false, t_min, t_max).0
                 } else {
                     lanes_where(open, |k| {
-                        let r = &rays[k];
+                        let r = &rays.ray(k);
                         self.intersect_unbounded(i, r, false, t_min, t_max[k], &mut ())
                             .is_some()
                     })
@@ -996,6 +997,7 @@ mod tests {
         for (rays, blocked) in [([up, down], 0b10), ([down, up], 0b01), ([down, down], 0b11)] {
             let mut packet = [up; 8];
             packet[..2].copy_from_slice(&rays);
+            let packet = Rays8::from_rays(&packet);
             let mut hint = ShadowHint::default();
             assert_eq!(
                 world.occluded_each(&packet, 0b11, 1e-9, &reach, &mut hint),
@@ -1009,7 +1011,7 @@ mod tests {
         }
         let mut hint = ShadowHint::default();
         world.occluded_each(
-            &[up, down, up, up, up, up, up, up],
+            &Rays8::from_rays(&[up, down, up, up, up, up, up, up]),
             0b11,
             1e-9,
             &reach,

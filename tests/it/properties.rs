@@ -5,7 +5,7 @@
 use std::sync::Arc;
 
 use glam::DVec3;
-use raytile::geometry::{Ray, ShadowHint};
+use raytile::geometry::{Ray, Rays8, ShadowHint};
 use raytile::render::{Packet, Rect, Renderer};
 use raytile::scene::{Limits, parse};
 use serde_json::{Value, json};
@@ -342,10 +342,11 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                 // ray's test, inlined into one loop), the same answers, and the hint
                 // left is the one the lone tests leave.
                 let given = ShadowHint::new(Some(rng.0 as u32 % r.world.len() as u32));
+                let lanes = Rays8::from_rays(&packet);
                 let (mut carried, mut each) = (given, given);
                 let in_turn = r
                     .world
-                    .occluded_each(&packet, active, 1e-9, &reach, &mut carried);
+                    .occluded_each(&lanes, active, 1e-9, &reach, &mut carried);
                 for (k, ray) in packet.iter().enumerate() {
                     let alone = active >> k & 1 == 1
                         && r.world.occluded_hinted(ray, 1e-9, reach[k], &mut each);
@@ -361,7 +362,7 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                         .occluded_hinted(&packet[k], 1e-9, reach[k], &mut each);
                     let lane = r
                         .world
-                        .occluded_each(&packet, 1 << k, 1e-9, &reach, &mut carried);
+                        .occluded_each(&lanes, 1 << k, 1e-9, &reach, &mut carried);
                     assert_eq!(
                         (lane == 1 << k, carried),
                         (alone, each),

@@ -17,7 +17,7 @@ use super::{
 };
 use crate::geometry::Ray;
 use crate::geometry::arith::Lanes4;
-use crate::geometry::ray::lanes3;
+use crate::geometry::ray::Rays8;
 use wide::f32x8;
 
 /// A proof type that the processor has the instruction sets `$feature`, its `detect`,
@@ -144,7 +144,7 @@ impl Avx2 {
     /// takes them for one. [`WideRays8::lane`] gives each ray's, bit for bit what
     /// `wide_ray` gives it.
     #[inline(always)]
-    pub fn wide_rays(self, rays: &[Ray; 8]) -> WideRays8 {
+    pub fn wide_rays(self, rays: &Rays8) -> WideRays8 {
         // SAFETY: an `Avx2` exists only where the processor has AVX2 (`detect`).
         unsafe { wide_rays(rays) }
     }
@@ -153,8 +153,8 @@ impl Avx2 {
 /// [`Avx2::wide_rays`]: [`wide_ray`]'s operations, a ray a lane.
 #[inline]
 #[target_feature(enable = "avx2")]
-fn wide_rays(rays: &[Ray; 8]) -> WideRays8 {
-    let (origin, dir) = (lanes3(rays, |r| r.origin), lanes3(rays, |r| r.dir));
+fn wide_rays(rays: &Rays8) -> WideRays8 {
+    let (origin, dir) = (&rays.origin, &rays.dir);
     let halves = |v: &[f64; 8]| {
         let (lo, hi) = v.split_at(4);
         // SAFETY: four `f64` each, read unaligned.
@@ -871,7 +871,7 @@ mod tests {
             };
             let at = |i: usize| DVec3::new(numbers[i], numbers[i + 1], numbers[i + 2]);
             let rays: [Ray; 8] = std::array::from_fn(|k| Ray::new(at(6 * k), at(6 * k + 3)));
-            let eight = avx2.wide_rays(&rays);
+            let eight = avx2.wide_rays(&Rays8::from_rays(&rays));
             let bits = |r: &WideRay8| {
                 [r.o_down, r.o_up, r.inv]
                     .map(|v| v.map(|v| bytemuck::cast::<__m256, [f32; 8]>(v).map(f32::to_bits)))

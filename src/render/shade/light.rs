@@ -13,7 +13,7 @@ use glam::DVec3;
 use super::{Conventions, Lecture};
 use crate::geometry::arith::{Arith, Eight, Lanes4, One, Portable};
 use crate::geometry::bounds::lanes_of;
-use crate::geometry::{Ray, Surface};
+use crate::geometry::{Ray, Rays8, Surface};
 use crate::scene::{Light, Material};
 
 /// `1e-9 · max(1, |p|∞)`: see [`surface_offset`].
@@ -303,8 +303,8 @@ impl Hits8 {
 pub(super) struct Lit8 {
     /// The lanes that cast a shadow ray.
     pub cast: u32,
-    /// The shadow rays (only the lanes of `cast` are written).
-    pub shadow: [Ray; 8],
+    /// The shadow rays (only those of the lanes of `cast` are cast).
+    pub shadow: Rays8,
     /// The rays' limit.
     pub t_max: [f64; 8],
     /// What the light adds at each lane's point (only the lanes of `cast` are written).
@@ -364,12 +364,14 @@ fn light8_in<L: Lanes4>(a: Eight<L>, h: &Hits8, light: &Light) -> Lit8 {
     let at = |v: &[[f64; 8]; 3], k: usize| DVec3::new(v[0][k], v[1][k], v[2][k]);
     let mut out = Lit8 {
         cast,
-        shadow: [Ray::new(DVec3::ZERO, DVec3::ZERO); 8],
+        shadow: Rays8 {
+            origin,
+            dir: to_light,
+        },
         t_max: [t_max; 8],
         lit: [DVec3::ZERO; 8],
     };
     for k in lanes_of(cast) {
-        out.shadow[k] = Ray::new(at(&origin, k), at(&to_light, k));
         out.lit[k] = at(&lit, k);
     }
     out
@@ -502,7 +504,7 @@ mod tests {
                 let cast = got.cast >> k & 1 == 1;
                 prop_assert_eq!(cast, want.casts_shadow_ray(), "lane {}: {:?}", k, want);
                 if cast {
-                    let ray = &got.shadow[k];
+                    let ray = &got.shadow.ray(k);
                     prop_assert_eq!(bits(ray.origin), bits(want.shadow_ray.origin));
                     prop_assert_eq!(bits(ray.dir), bits(want.shadow_ray.dir));
                     prop_assert_eq!(got.t_max[k].to_bits(), want.shadow_t_max.to_bits());

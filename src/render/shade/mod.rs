@@ -23,7 +23,7 @@ use std::cell::Cell;
 use glam::DVec3;
 
 use crate::geometry::bounds::lanes_of;
-use crate::geometry::{Hit, Ray, ShadowHint, Surface, Transform, World};
+use crate::geometry::{Hit, Ray, Rays8, ShadowHint, Surface, Transform, World};
 use crate::scene::{Light, Material, Scene};
 
 mod light;
@@ -348,7 +348,7 @@ impl<'a> Shader<'a> {
     /// from a packet's hits at depth 0, each within `t_max[lane]`, one after another
     /// ([`World::occluded_each`]): the bit set of those blocked.
     #[inline(always)]
-    fn lights_blocked(&self, k: usize, rays: &[Ray; 8], cast: u32, t_max: &[f64; 8]) -> u32 {
+    fn lights_blocked(&self, k: usize, rays: &Rays8, cast: u32, t_max: &[f64; 8]) -> u32 {
         let kept = self.shadow_hints.first().and_then(|h| h.get(k));
         // A light without a hint kept has one for the packet's rays alone.
         let mut hint = kept.map(Cell::get).unwrap_or_default();
@@ -505,7 +505,7 @@ impl Shader<'_> {
             rays.0 += u64::from(t.cast.count_ones());
             let blocked = if packets {
                 self.world
-                    .occluded8(&t.shadow, t.cast, SECONDARY_LAMBDA_MIN, t.t_max)
+                    .occluded8(&t.shadow.rays(), t.cast, SECONDARY_LAMBDA_MIN, t.t_max)
             } else {
                 self.lights_blocked(j, &t.shadow, t.cast, &t.t_max)
             };
