@@ -747,9 +747,10 @@ impl Bvh {
     }
 
     /// [`Bvh::any`] with the ray's lanes for the wide tree made by the caller,
-    /// `lanes()` (`None` where its numbers do not fit them): nothing here enters code compiled for AVX2
-    /// by a call of its own, for a caller compiled for it that makes several rays'
-    /// lanes at once ([`World::occluded_each`](super::world::World::occluded_each)).
+    /// `lanes()` (`None` where its numbers do not fit them): nothing here enters code
+    /// compiled for AVX2 by a call of its own, for a caller compiled for it that makes
+    /// several rays' lanes at once
+    /// ([`World::occluded_each`](super::world::World::occluded_each)).
     #[inline(always)]
     pub fn any_prepared<W: WideTest, F: FnMut(u32) -> bool>(
         &self,

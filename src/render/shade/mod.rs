@@ -494,13 +494,13 @@ impl Shader<'_> {
         self.shade_lanes::<true>(primary, hits, 0xff, 0, rays)
     }
 
-    /// [`Shader::shade8`] of the rays of `lanes` at `depth` and their hits (`None` in
-    /// the other lanes): primary rays (`PRIMARY`, at depth 0), or a packet's secondary
-    /// rays, deeper. Each lane's colour is what [`Shader::shade_as`] gives its ray, bit
-    /// for bit.
+    /// [`Shader::shade8`] of the rays `traced` of `lanes` at `depth` and their hits
+    /// (`None` in the other lanes): primary rays (`PRIMARY`, at depth 0), or a packet's
+    /// secondary rays, deeper. Each lane's colour is what [`Shader::shade_as`] gives its
+    /// ray, bit for bit.
     fn shade_lanes<const PRIMARY: bool>(
         &self,
-        primary: &[Ray; 8],
+        traced: &[Ray; 8],
         hits: [Option<Hit>; 8],
         lanes: u32,
         depth: u32,
@@ -519,12 +519,12 @@ impl Shader<'_> {
         let mut at: [Option<HitPoint>; 8] = [const { None }; 8];
         for (k, hit) in hits.iter().enumerate() {
             if let Some(hit) = hit {
-                let (point, ambient) = self.hit_point_as::<Lecture>(&primary[k], hit, PRIMARY);
+                let (point, ambient) = self.hit_point_as::<Lecture>(&traced[k], hit, PRIMARY);
                 (at[k], c[k]) = (Some(point), ambient);
             }
         }
         let mut hits8 = light::Hits8::EMPTY;
-        hits8.fill(|k| at[k].as_ref().map(|a| (&a.s, a.n, a.m, primary[k].dir)));
+        hits8.fill(|k| at[k].as_ref().map(|a| (&a.s, a.n, a.m, traced[k].dir)));
         let packets = self.world.traces_shadow_packets();
         for (j, light) in self.scene.lights.iter().enumerate() {
             let t = light::light8(&hits8, light);
@@ -541,7 +541,7 @@ impl Shader<'_> {
         }
         for (k, at) in at.iter().enumerate() {
             if let Some(at) = at {
-                let sends = self.secondaries_as::<(), Lecture>(&primary[k], depth, at, &mut ());
+                let sends = self.secondaries_as::<(), Lecture>(&traced[k], depth, at, &mut ());
                 Sent8::put(&mut next, k, sends);
             }
         }
@@ -552,8 +552,8 @@ impl Shader<'_> {
     }
 
     /// `c`, the colours of eight hits at `depth` so far, with what their secondary
-    /// rays `next` add: each branch's rays traced and shaded as a packet where two or more
-    /// pixels send one, the reflections' before the refractions', as
+    /// rays `next` add: each branch's rays traced and shaded as a packet where two or
+    /// more pixels send one, the reflections' before the refractions', as
     /// [`Shader::add_secondaries_as`] adds them.
     #[inline(always)]
     fn add_secondaries8(
