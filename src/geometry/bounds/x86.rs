@@ -86,55 +86,79 @@ impl Avx2 {
 
 /// [`Avx2::wide_ray`]: the origin rounded down and up to `f32` as `round_down` and
 /// `round_up` round it, the direction to `f32` and its reciprocal, an axis a lane (the
-/// fourth lane's numbers pass every check and are not used).
+/// fourth lane's numbers pass every check and are not used). The ray is made as
+/// [`wide_rays`] makes eight, in both halves: the compiler does each operation on the
+/// two same halves once, so this costs what a four-lane copy of that code did.
 #[inline]
 #[target_feature(enable = "avx2")]
 fn wide_ray(ray: &Ray) -> Option<WideRay8> {
     let (o, d) = (ray.origin, ray.dir);
     let o = _mm256_setr_pd(o.x, o.y, o.z, 0.0);
-    let d = _mm256_cvtpd_ps(_mm256_setr_pd(d.x, d.y, d.z, 1.0));
-    // `fits` and `near`, ordered comparisons, so that a NaN fails.
-    let sign = _mm_set1_ps(-0.0);
-    let m = _mm_andnot_ps(sign, d);
-    let fits = _mm_and_ps(
-        _mm_cmp_ps::<_CMP_GE_OQ>(m, _mm_set1_ps(DIR_SMALLEST)),
-        _mm_cmp_ps::<_CMP_LE_OQ>(m, _mm_set1_ps(DIR_LARGEST)),
-    );
-    let near = _mm256_cmp_pd::<_CMP_LE_OQ>(
-        _mm256_andnot_pd(_mm256_set1_pd(-0.0), o),
-        _mm256_set1_pd(SINGLE_LIMIT),
-    );
-    if _mm_movemask_ps(fits) != 0b1111 || _mm256_movemask_pd(near) != 0b1111 {
+    let d = _mm256_setr_pd(d.x, d.y, d.z, 1.0);
+    let (d, fits) = single_dir([d, d]);
+    let (down, up, near) = single_origin([o, o]);
+    if fits & near != 0xff {
         return None;
     }
-    let inv = _mm_div_ps(_mm_set1_ps(1.0), d);
-    // Rounded to nearest, then a step toward −∞ (down) or +∞ (up) where that went
-    // past the coordinate: the step is −1 on a positive number's bits, +1 on a
-    // negative one's (a zero takes the coordinate's sign, so it steps the right way).
-    let y = _mm256_cvtpd_ps(o);
-    let back = _mm256_cvtps_pd(y);
-    let low_words = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
-    let words = |m: __m256d| {
-        _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(
-            _mm256_castpd_si256(m),
-            low_words,
-        ))
-    };
-    let above = words(_mm256_cmp_pd::<_CMP_GT_OQ>(back, o));
-    let below = words(_mm256_cmp_pd::<_CMP_LT_OQ>(back, o));
-    let bits = _mm_castps_si128(y);
-    let step = _mm_or_si128(_mm_srai_epi32::<31>(bits), _mm_set1_epi32(1));
-    let down = _mm_castsi128_ps(_mm_sub_epi32(bits, _mm_and_si128(above, step)));
-    let up = _mm_castsi128_ps(_mm_add_epi32(bits, _mm_and_si128(below, step)));
-    let lanes = |v: __m128| {
-        let v = _mm256_castps128_ps256(v);
-        [0, 1, 2].map(|a| _mm256_permutevar8x32_ps(v, _mm256_set1_epi32(a)))
-    };
+    let inv = _mm256_div_ps(_mm256_set1_ps(1.0), d);
+    let lanes = |v: __m256| [0, 1, 2].map(|a| _mm256_permutevar8x32_ps(v, _mm256_set1_epi32(a)));
     Some(WideRay8 {
         o_down: lanes(down),
         o_up: lanes(up),
         inv: lanes(inv),
     })
+}
+
+/// Eight direction coordinates (two vectors of four) in `f32`, and the bit set of the
+/// lanes whose magnitude the single-precision test takes (ordered comparisons, so
+/// that a NaN fails): the one home of that check.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn single_dir(d: [__m256d; 2]) -> (__m256, i32) {
+    let d = _mm256_set_m128(_mm256_cvtpd_ps(d[1]), _mm256_cvtpd_ps(d[0]));
+    let m = _mm256_andnot_ps(_mm256_set1_ps(-0.0), d);
+    let fits = _mm256_and_ps(
+        _mm256_cmp_ps::<_CMP_GE_OQ>(m, _mm256_set1_ps(DIR_SMALLEST)),
+        _mm256_cmp_ps::<_CMP_LE_OQ>(m, _mm256_set1_ps(DIR_LARGEST)),
+    );
+    (d, _mm256_movemask_ps(fits))
+}
+
+/// Eight origin coordinates (two vectors of four) rounded down and up to `f32` (as
+/// `round_down` and `round_up` round them), and the bit set of the lanes within the
+/// single-precision test's limit: the one home of that rounding.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn single_origin(o: [__m256d; 2]) -> (__m256, __m256, i32) {
+    let near = o.map(|o| {
+        _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_LE_OQ>(
+            _mm256_andnot_pd(_mm256_set1_pd(-0.0), o),
+            _mm256_set1_pd(SINGLE_LIMIT),
+        ))
+    });
+    // Rounded to nearest, then a step toward −∞ (down) or +∞ (up) where that went
+    // past the coordinate: the step is −1 on a positive number's bits, +1 on a
+    // negative one's (a zero takes the coordinate's sign, so it steps the right way).
+    let y = o.map(|o| _mm256_cvtpd_ps(o));
+    let back = y.map(|y| _mm256_cvtps_pd(y));
+    // A comparison's eight 64-bit answers as eight 32-bit ones, each half's in order.
+    let low_words = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
+    let words = |m: [__m256d; 2]| {
+        let w = m.map(|m| {
+            _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(
+                _mm256_castpd_si256(m),
+                low_words,
+            ))
+        });
+        _mm256_set_m128i(w[1], w[0])
+    };
+    let above = words([0, 1].map(|h| _mm256_cmp_pd::<_CMP_GT_OQ>(back[h], o[h])));
+    let below = words([0, 1].map(|h| _mm256_cmp_pd::<_CMP_LT_OQ>(back[h], o[h])));
+    let bits = _mm256_castps_si256(_mm256_set_m128(y[1], y[0]));
+    let step = _mm256_or_si256(_mm256_srai_epi32::<31>(bits), _mm256_set1_epi32(1));
+    let down = _mm256_castsi256_ps(_mm256_sub_epi32(bits, _mm256_and_si256(above, step)));
+    let up = _mm256_castsi256_ps(_mm256_add_epi32(bits, _mm256_and_si256(below, step)));
+    (down, up, near[0] | near[1] << 4)
 }
 
 impl Avx2 {
@@ -154,22 +178,10 @@ impl Avx2 {
 #[inline]
 #[target_feature(enable = "avx2")]
 fn wide_rays(rays: &Rays8) -> WideRays8 {
-    let (origin, dir) = (&rays.origin, &rays.dir);
     let halves = |v: &[f64; 8]| {
         let (lo, hi) = v.split_at(4);
         // SAFETY: four `f64` each, read unaligned.
         unsafe { [_mm256_loadu_pd(lo.as_ptr()), _mm256_loadu_pd(hi.as_ptr())] }
-    };
-    // A comparison's eight 64-bit answers as eight 32-bit ones, each half's in order.
-    let low_words = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
-    let words = |m: [__m256d; 2]| {
-        let w = m.map(|m| {
-            _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(
-                _mm256_castpd_si256(m),
-                low_words,
-            ))
-        });
-        _mm256_set_m128i(w[1], w[0])
     };
     let mut fits = 0xff;
     let mut lanes = WideRays8 {
@@ -179,32 +191,13 @@ fn wide_rays(rays: &Rays8) -> WideRays8 {
         inv: [_mm256_setzero_ps(); 3],
     };
     for a in 0..3 {
-        let (o, d) = (halves(&origin[a]), halves(&dir[a]));
-        let d = _mm256_set_m128(_mm256_cvtpd_ps(d[1]), _mm256_cvtpd_ps(d[0]));
-        let m = _mm256_andnot_ps(_mm256_set1_ps(-0.0), d);
-        fits &= _mm256_movemask_ps(_mm256_and_ps(
-            _mm256_cmp_ps::<_CMP_GE_OQ>(m, _mm256_set1_ps(DIR_SMALLEST)),
-            _mm256_cmp_ps::<_CMP_LE_OQ>(m, _mm256_set1_ps(DIR_LARGEST)),
-        ));
-        for (h, o) in o.iter().enumerate() {
-            let near = _mm256_cmp_pd::<_CMP_LE_OQ>(
-                _mm256_andnot_pd(_mm256_set1_pd(-0.0), *o),
-                _mm256_set1_pd(SINGLE_LIMIT),
-            );
-            fits &= _mm256_movemask_pd(near) << (4 * h) | !(0b1111 << (4 * h));
-        }
+        let (d, d_fits) = single_dir(halves(&rays.dir[a]));
+        let (down, up, near) = single_origin(halves(&rays.origin[a]));
+        fits &= d_fits & near;
         lanes.inv[a] = _mm256_div_ps(_mm256_set1_ps(1.0), d);
-        let y = o.map(|o| _mm256_cvtpd_ps(o));
-        let back = y.map(|y| _mm256_cvtps_pd(y));
-        let above = words([0, 1].map(|h| _mm256_cmp_pd::<_CMP_GT_OQ>(back[h], o[h])));
-        let below = words([0, 1].map(|h| _mm256_cmp_pd::<_CMP_LT_OQ>(back[h], o[h])));
-        let bits = _mm256_castps_si256(_mm256_set_m128(y[1], y[0]));
-        let step = _mm256_or_si256(_mm256_srai_epi32::<31>(bits), _mm256_set1_epi32(1));
-        lanes.o_down[a] =
-            _mm256_castsi256_ps(_mm256_sub_epi32(bits, _mm256_and_si256(above, step)));
-        lanes.o_up[a] = _mm256_castsi256_ps(_mm256_add_epi32(bits, _mm256_and_si256(below, step)));
+        (lanes.o_down[a], lanes.o_up[a]) = (down, up);
     }
-    lanes.fits = fits as u32 & 0xff;
+    lanes.fits = fits as u32;
     lanes
 }
 
