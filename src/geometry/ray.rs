@@ -79,12 +79,6 @@ impl Rays8 {
         let at = |v: &[[f64; 8]; 3]| DVec3::new(v[0][k], v[1][k], v[2][k]);
         Ray::new(at(&self.origin), at(&self.dir))
     }
-
-    /// The eight rays.
-    #[inline(always)]
-    pub fn rays(&self) -> [Ray; 8] {
-        std::array::from_fn(|k| self.ray(k))
-    }
 }
 
 /// The vectors `v(ray)` of a packet's eight rays, coordinate by coordinate (each in
@@ -120,6 +114,5 @@ mod tests {
             assert_eq!(eight.origin[2][k].to_bits(), ray.origin.z.to_bits());
             assert_eq!(eight.dir[1][k].to_bits(), ray.dir.y.to_bits());
         }
-        assert_eq!(eight.rays().map(|r| bits(&r)), rays.map(|r| bits(&r)));
     }
 }

@@ -734,25 +734,16 @@ impl World {
     /// shadow rays of neighbouring pixels part ways there, and as packets they made
     /// renders of `classic` and `cubes-10k` 6–7 % slower (`spheres-1k` 3 % faster),
     /// while `mesh-100k`'s were 11 % faster.
-    pub fn occluded8(&self, rays: &[Ray; 8], active: u32, t_min: f64, t_max: [f64; 8]) -> u32 {
+    pub fn occluded8(&self, rays: &Rays8, active: u32, t_min: f64, t_max: &[f64; 8]) -> u32 {
         if active == 0 {
             return 0;
         }
         let Some(mesh) = self.shadow_packet_object() else {
             return lanes_where(active, |lane| {
-                self.occluded(&rays[lane], t_min, t_max[lane])
+                self.occluded(&rays.ray(lane), t_min, t_max[lane])
             });
         };
-        // Off a surface, as a lone shadow ray's (`World::occluded_hinted`): origins
-        // carried, not compared with the viewpoint.
-        let mut blocked = 0;
-        for &i in &self.unbounded {
-            blocked |= lanes_where(active & !blocked, |lane| {
-                let r = &rays[lane];
-                self.intersect_unbounded(i, r, false, t_min, t_max[lane], &mut ())
-                    .is_some()
-            });
-        }
+        let (blocked, _) = self.blocking_planes8(Eight(Portable), rays, active, t_min, t_max);
         let open = active & !blocked;
         let Some(first) = lanes_of(open).next() else {
             return blocked;
@@ -762,9 +753,9 @@ impl World {
         // them (what they find is not asked).
         let object = std::array::from_fn(|k| {
             let lane = if open >> k & 1 == 1 { k } else { first };
-            s.object_ray(&rays[lane], false)
+            s.object_ray(&rays.ray(lane), false)
         });
-        blocked | s.shape.occludes8(&object, open, t_min, t_max)
+        blocked | s.shape.occludes8(&object, open, t_min, *t_max)
     }
 
     /// Whether [`World::occluded8`] traces a packet's shadow rays together, not one

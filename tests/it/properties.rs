@@ -333,7 +333,9 @@ fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
                 x => 30.0 * x,
             });
             for packet in [rays, flat] {
-                let blocked = r.world.occluded8(&packet, active, 1e-9, reach);
+                let blocked = r
+                    .world
+                    .occluded8(&Rays8::from_rays(&packet), active, 1e-9, &reach);
                 for (k, ray) in packet.iter().enumerate() {
                     let alone = active >> k & 1 == 1 && r.world.occluded(ray, 1e-9, reach[k]);
                     assert_eq!(blocked >> k & 1 == 1, alone, "seed {seed} lane {k}");

@@ -531,7 +531,7 @@ impl Shader<'_> {
             rays.0 += u64::from(t.cast.count_ones());
             let blocked = if packets {
                 self.world
-                    .occluded8(&t.shadow.rays(), t.cast, SECONDARY_LAMBDA_MIN, t.t_max)
+                    .occluded8(&t.shadow, t.cast, SECONDARY_LAMBDA_MIN, &t.t_max)
             } else {
                 self.lights_blocked(j, depth, &t.shadow, t.cast, &t.t_max)
             };
