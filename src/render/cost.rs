@@ -5,8 +5,10 @@
 //! that fills a corner of the frame would count as if it filled all of it. So the
 //! estimate is measured instead, by a *pilot*: the region's pixels on a regular grid of
 //! at most [`PILOT_PIXELS`], each traced with all its samples at full depth by the
-//! tracer itself ([`Shader::trace_probed`]), in an order that spreads any prefix over
-//! the frame. The rays they cost, scaled to the region's pixel count, are the estimate.
+//! tracer itself
+//! ([`Shader::trace_probed`](crate::render::shade::Shader::trace_probed)), in an order
+//! that spreads any prefix over the frame. The rays they cost, scaled to the region's
+//! pixel count, are the estimate.
 //!
 //! The pilot is bounded too. It stops as soon as the rays it counted, scaled the same
 //! way, already exceed the limit it was asked about: that lower bound is enough to
@@ -26,7 +28,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::DVec3;
 
-use super::shade::{Branch, RayCount, Shader, ShadingProbe};
+use super::shade::{Branch, RayCount, ShadingProbe};
 use super::{Cancel, Rect, Renderer};
 use crate::geometry::{Hit, Surface, ray::PRIMARY_LAMBDA_MIN};
 use crate::scene::document::MaterialRefDoc;
@@ -157,7 +159,7 @@ pub fn estimate(
     let budget = proof.min(PILOT_MAX_RAYS);
 
     let scene = &*r.scene;
-    let shader = Shader::new(scene, &r.world);
+    let shader = r.shader();
     let seen = vec![Cell::new(false); scene.materials.len()];
     let mut probe = Branching {
         scene,

@@ -38,6 +38,8 @@ pub struct Renderer {
     pub world: World,
     /// Its camera.
     pub camera: PrimaryRays,
+    /// [`Scene::sends_secondaries`], found once for every shader of this render.
+    secondaries: bool,
 }
 
 impl Renderer {
@@ -47,6 +49,7 @@ impl Renderer {
         let camera = PrimaryRays::new(&scene);
         world.set_viewpoint(camera.origin());
         Renderer {
+            secondaries: scene.sends_secondaries(),
             scene,
             world,
             camera,
@@ -66,7 +69,7 @@ impl Renderer {
 
     /// [`Renderer::pixel_colour`] traced under conventions `C`.
     pub fn pixel_colour_as<C: Conventions>(&self, u: u32, v: u32, rays: &mut RayCount) -> DVec3 {
-        let shader = Shader::new(&self.scene, &self.world);
+        let shader = self.shader();
         let s = self.scene.samples;
         if s == 1 {
             let ray = self.camera.pixel_ray::<C>(u, v);
@@ -259,10 +262,12 @@ impl Renderer {
     }
 
     /// A shader of this scene for one thread's pixels, one after another: those given
-    /// to it in order (a tile's pair of rows, packet by packet) share its shadow hints
-    /// ([`Shader::new`]).
+    /// to it in order (a tile's pair of rows, packet by packet) share its shadow hints.
+    /// Every shader is made here, so that the scene's materials are scanned once a
+    /// render ([`Scene::sends_secondaries`]), not once a shader (a pixel, on some
+    /// paths).
     pub fn shader(&self) -> Shader<'_> {
-        Shader::new(&self.scene, &self.world)
+        Shader::new(&self.scene, &self.world, self.secondaries)
     }
 
     /// [`Renderer::pixel_colour`] of packet `p`'s pixels (lane by lane), their primary

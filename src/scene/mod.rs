@@ -81,6 +81,13 @@ impl Scene {
         World::new(self.objects.iter().map(|o| (&o.shape, &o.transform)))
     }
 
+    /// Whether a hit can send a secondary ray: some material reflects or transmits
+    /// ([`Material::sends_secondaries`]) and `max_depth` allows one. A scan of the
+    /// materials, made once a render ([`crate::render::Renderer::new`]).
+    pub fn sends_secondaries(&self) -> bool {
+        self.max_depth > 0 && self.materials.iter().any(Material::sends_secondaries)
+    }
+
     /// Total triangle count over all meshes.
     pub fn triangles(&self) -> u64 {
         self.objects
@@ -142,6 +149,17 @@ pub struct Material {
     pub transmission: DVec3,
     /// Index of refraction.
     pub ior: f64,
+}
+
+impl Material {
+    /// Whether a hit on it sends secondary rays (below `max_depth`): it reflects
+    /// (`mirror`) or transmits (`transmission`).
+    #[inline(always)]
+    pub fn sends_secondaries(&self) -> bool {
+        // Written as the shader always tested it: as `≠ … || ≠ …` it compiled to more
+        // instructions in the shader's test (render instructions +0.6 % on classic).
+        !(self.mirror == DVec3::ZERO && self.transmission == DVec3::ZERO)
+    }
 }
 
 /// A light.

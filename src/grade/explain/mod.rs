@@ -3,10 +3,11 @@
 //! laid out like the lecture's worked example ([`to_text`]).
 //!
 //! Nothing here repeats the mathematics: the pixel is shaded by the renderer's own
-//! [`Shader::trace_probed`], with the explanation's recorder as its shading probe in place of
-//! the renderer's `()`, and the shape tests report their quadratics, faces and triangles
-//! through [`Probe`](crate::geometry::Probe). So every ray's colour is the tracer's, and
-//! the final colour is [`Renderer::pixel_colour`] quantised by [`fn@quantise`]: the 8-bit
+//! [`Shader::trace_probed`](crate::render::shade::Shader::trace_probed), with the
+//! explanation's recorder as its shading probe in place of the renderer's `()`, and the
+//! shape tests report their quadratics, faces and triangles through
+//! [`Probe`](crate::geometry::Probe). So every ray's colour is the tracer's, and the
+//! final colour is [`Renderer::pixel_colour`] quantised by [`fn@quantise`]: the 8-bit
 //! colour shown is the rendered PNG's pixel exactly.
 //!
 //! - [`model`]: the answer's types, as they serialise to JSON;
@@ -33,7 +34,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::geometry::ray::PRIMARY_LAMBDA_MIN;
 use crate::render::camera::sample_point;
-use crate::render::shade::Shader;
 use crate::render::{Lecture, RayCount, Renderer, quantise};
 pub use model::{
     Blocker, DirectionTerms, Explanation, FaceCheck, FinalColour, HitInfo, ImageInfo, LightInfo,
@@ -143,7 +143,7 @@ pub fn explain(r: &Renderer, u: u32, v: u32, opts: &ExplainOptions) -> Explanati
     let (x, y) = (u as f64 + 0.5, v as f64 + 0.5);
     let camera_ray = r.camera.camera_ray(x, y);
     let world_ray = r.camera.pixel_centre(u, v);
-    let shader = Shader::new(scene, &r.world);
+    let shader = r.shader();
     let ex = Explainer::new(r, opts, mode);
     let mut recorder = Recorder::primary(&ex);
     let centre = shader.trace_probed(
@@ -350,7 +350,7 @@ mod tests {
     #[test]
     fn showcase_colours_match_the_renderer() {
         let r = renderer("showcase.json");
-        let shader = Shader::new(&r.scene, &r.world);
+        let shader = r.shader();
         // Floor, mirror ball, glass ball, small ball, cube, column, cone, backdrop, gem, slab,
         // sky and corners.
         for (u, v) in [
@@ -388,7 +388,7 @@ mod tests {
     fn every_shape_explains_the_rendered_pixel() {
         for name in SHAPE_SCENES {
             let r = renderer(name);
-            let shader = Shader::new(&r.scene, &r.world);
+            let shader = r.shader();
             for v in (0..r.scene.height).step_by(7) {
                 for u in (0..r.scene.width).step_by(7) {
                     let e = explain(&r, u, v, &ExplainOptions::default());
@@ -533,7 +533,7 @@ mod tests {
                 let at = t.budget_spent_at.as_ref().unwrap();
                 assert!(at.pointer.starts_with("/tree"), "{}", at.pointer);
                 assert!(t.tests_unlisted > 0 && t.rays_not_broken_down > 0);
-                let shader = Shader::new(&r.scene, &r.world);
+                let shader = r.shader();
                 let centre = shader.trace(
                     &r.camera.pixel_centre(2, 2),
                     0,

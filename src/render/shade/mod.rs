@@ -314,16 +314,27 @@ pub struct Shader<'a> {
     /// Each depth keeps its own, so that a mirror's rays, shaded between two pixels'
     /// primary hits, do not replace theirs.
     shadow_hints: [[Cell<ShadowHint>; HINTED_LIGHTS]; HINTED_DEPTHS],
+    /// [`Scene::sends_secondaries`], as the renderer found it: where no hit sends a
+    /// secondary ray, a packet's hits skip asking each material (render instructions
+    /// −1.7 % on spheres-1k).
+    secondaries: bool,
 }
 
 impl<'a> Shader<'a> {
-    /// A shader of `scene`, tracing through `world` (built from it). Pixels shaded by
-    /// one shader one after another, neighbours in order, share its hints.
-    pub fn new(scene: &'a Scene, world: &'a World) -> Shader<'a> {
+    /// A shader of `scene`, tracing through `world` (built from it), `secondaries`
+    /// its [`Scene::sends_secondaries`] (made once, by
+    /// [`Renderer::shader`](crate::render::Renderer::shader)). Pixels shaded by one
+    /// shader one after another, neighbours in order, share its hints.
+    pub(in crate::render) fn new(
+        scene: &'a Scene,
+        world: &'a World,
+        secondaries: bool,
+    ) -> Shader<'a> {
         Shader {
             scene,
             world,
             shadow_hints: Default::default(),
+            secondaries,
         }
     }
 
@@ -539,10 +550,12 @@ impl Shader<'_> {
                 c[k] += t.lit[k];
             }
         }
-        for (k, at) in at.iter().enumerate() {
-            if let Some(at) = at {
-                let sends = self.secondaries_as::<(), Lecture>(&traced[k], depth, at, &mut ());
-                Sent8::put(&mut next, k, sends);
+        if self.secondaries {
+            for (k, at) in at.iter().enumerate() {
+                if let Some(at) = at {
+                    let sends = self.secondaries_as::<(), Lecture>(&traced[k], depth, at, &mut ());
+                    Sent8::put(&mut next, k, sends);
+                }
             }
         }
         match &next {
@@ -656,7 +669,7 @@ impl Shader<'_> {
     ) -> [Option<Secondary>; 2] {
         let (s, n, m) = (&at.s, at.n, at.m);
         let mut next = [None; 2];
-        if m.mirror == DVec3::ZERO && m.transmission == DVec3::ZERO {
+        if !m.sends_secondaries() {
             probe.no_secondary(NoSecondary::Material);
         } else if if C::EXTRA_DEPTH == 0 {
             depth >= self.scene.max_depth
@@ -743,7 +756,7 @@ mod tests {
         let path = format!("{}/scenes/showcase.json", env!("CARGO_MANIFEST_DIR"));
         let bytes = std::fs::read(path).unwrap();
         let r = Renderer::new(Arc::new(parse(&bytes, &Limits::NONE).unwrap()));
-        let shader = Shader::new(&r.scene, &r.world);
+        let shader = r.shader();
         for v in (0..r.scene.height).step_by(37) {
             for u in (0..r.scene.width).step_by(37) {
                 let ray = r.camera.pixel_centre(u, v);
