@@ -194,3 +194,40 @@ pub enum Light {
 
 /// A scene shared between the threads that trace it.
 pub type SharedScene = Arc<Scene>;
+
+#[cfg(test)]
+mod secondaries_tests {
+    use super::*;
+
+    /// A scene of one sphere of `material` (JSON), `max_depth` as given.
+    fn scene(material: serde_json::Value, max_depth: u32) -> Scene {
+        let doc = serde_json::json!({
+            "version": 1,
+            "image": {"width": 2, "height": 2},
+            "max_depth": max_depth,
+            "materials": {"m": material, "plain": {"diffuse": [0.5, 0.5, 0.5]}},
+            "objects": [
+                {"shape": "sphere", "material": "plain"},
+                {"shape": "sphere", "material": "m"}
+            ],
+            "lights": []
+        });
+        let bytes = serde_json::to_vec(&doc).unwrap();
+        validate::parse(&bytes, &Limits::NONE).unwrap()
+    }
+
+    /// A scene sends secondary rays where one material reflects or transmits, in any
+    /// channel, and `max_depth` lets a hit send one; a material that does neither
+    /// (a zero of either sign) sends none.
+    #[test]
+    fn secondaries_are_sent_where_a_material_reflects_or_transmits_below_max_depth() {
+        let mirror = serde_json::json!({"mirror": [0, 0, 0.25]});
+        let glass = serde_json::json!({"transmission": [0.5, 0, 0], "ior": 1.5});
+        let matte = serde_json::json!({"mirror": [-0.0, 0, 0], "transmission": [0, 0, 0]});
+        assert!(scene(mirror.clone(), 5).sends_secondaries());
+        assert!(scene(glass.clone(), 1).sends_secondaries());
+        assert!(!scene(matte, 5).sends_secondaries());
+        assert!(!scene(mirror, 0).sends_secondaries());
+        assert!(!scene(glass, 0).sends_secondaries());
+    }
+}
