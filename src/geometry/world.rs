@@ -826,6 +826,10 @@ impl World {
 
     /// [`World::surface`] of a ray the caller knows to start at the viewpoint (a
     /// primary ray), its origin not compared (see [`World::closest8`]'s `view`).
+    // Always inlined: left a call, each primary hit's record (about 100 bytes) was
+    // written to memory by it and read back by the shader, which waited on it. Render
+    // instructions −2.7 % on classic and spheres-1k, −2.1 % on cubes-10k.
+    #[inline(always)]
     pub fn view_surface(&self, ray: &Ray, hit: &Hit) -> Surface {
         debug_assert!(self.is_viewpoint(ray));
         self.record(ray, hit, true)
