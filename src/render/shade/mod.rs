@@ -547,7 +547,7 @@ impl Shader<'_> {
                 self.lights_blocked(j, depth, &t.shadow, t.cast, &t.t_max)
             };
             for k in lanes_of(t.cast & !blocked) {
-                c[k] += t.lit[k];
+                c[k] += t.lit(k);
             }
         }
         if self.secondaries {
