@@ -525,9 +525,11 @@ impl Shader<'_> {
             return c;
         }
         let mut next = None;
-        // Filled in place: made by `array::from_fn`, the eight records (150 bytes
-        // each) were copied once more.
-        let mut at: [Option<HitPoint>; 8] = [const { None }; 8];
+        // Filled in place: made by `array::from_fn` with their records, the eight
+        // records (120 bytes each) were copied once more. Its `None`s are made by
+        // `array::from_fn` too: `[const { None }; 8]` compiled to a call to `memset`
+        // of all 960 bytes (render instructions −0.6 % on classic and spheres-1k).
+        let mut at: [Option<HitPoint>; 8] = std::array::from_fn(|_| None);
         for (k, hit) in hits.iter().enumerate() {
             if let Some(hit) = hit {
                 let (point, ambient) = self.hit_point_as::<Lecture>(&traced[k], hit, PRIMARY);
