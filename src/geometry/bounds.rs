@@ -2,7 +2,8 @@
 
 use glam::{DAffine3, DVec3};
 
-use super::ray::Ray;
+use super::arith::{Arith, Eight, Lanes4, One};
+use super::ray::{Ray, Rays8};
 use wide::{f32x4, f32x8, f64x2};
 
 // The one module with `unsafe`: calling code compiled for AVX2 or AVX-512, once the
@@ -94,6 +95,120 @@ impl Aabb {
     }
 }
 
+/// `d`, or where it is below 10⁻³⁰⁰ in magnitude (a zero, a subnormal) 10⁻³⁰⁰ of its
+/// sign, so that its reciprocal is finite and `0 · ∞ = NaN` never arises. A ray
+/// running exactly in a box's face plane then counts as leaving it; the BVH pads its
+/// boxes (see [`Aabb::padded`]), so such a plane never holds a surface point.
+#[inline(always)]
+fn nonzero(d: f64) -> f64 {
+    if d.abs() < 1e-300 {
+        1e-300f64.copysign(d)
+    } else {
+        d
+    }
+}
+
+/// [`SlabRay::enter`] in numbers `A` (one ray, or eight in lanes): the entry `λ` of
+/// rays from `origin` (reciprocal directions `inv`) into the box `(min, max)` clipped
+/// to `[t_min, t_max]`, and the rays that enter (as a bit set).
+#[inline(always)]
+fn slab_enter<A: Arith>(
+    a: A,
+    origin: [A::N; 3],
+    inv: [A::N; 3],
+    (min, max): (DVec3, DVec3),
+    t_min: A::N,
+    t_max: A::N,
+) -> (A::N, u32) {
+    let (lo, hi) = (min.to_array(), max.to_array());
+    // Written out, not by closures: those were left calls (attributes that would
+    // inline them are not allowed on closures bound to names).
+    let t0x = a.mul(a.sub(a.splat(lo[0]), origin[0]), inv[0]);
+    let t1x = a.mul(a.sub(a.splat(hi[0]), origin[0]), inv[0]);
+    let t0y = a.mul(a.sub(a.splat(lo[1]), origin[1]), inv[1]);
+    let t1y = a.mul(a.sub(a.splat(hi[1]), origin[1]), inv[1]);
+    let t0z = a.mul(a.sub(a.splat(lo[2]), origin[2]), inv[2]);
+    let t1z = a.mul(a.sub(a.splat(hi[2]), origin[2]), inv[2]);
+    let near = slab_max(
+        a,
+        slab_max(a, slab_min(a, t0x, t1x), slab_min(a, t0y, t1y)),
+        slab_max(a, slab_min(a, t0z, t1z), t_min),
+    );
+    let far = slab_min(
+        a,
+        slab_min(a, slab_max(a, t0x, t1x), slab_max(a, t0y, t1y)),
+        slab_min(a, slab_max(a, t0z, t1z), t_max),
+    );
+    // 1 + 2γ₃ (pbrt): the far distance is rounded up so grazing rays are not lost.
+    let far = a.mul(far, a.splat(1.0 + 4.0 * f64::EPSILON));
+    (near, a.ge(far, near))
+}
+
+/// Eight rays prepared for the slab test together: [`SlabRay::new`]'s reciprocals of
+/// their directions made in lanes, and their entry into a box tested in lanes
+/// ([`SlabRays8::enter8`]), each ray then traversing alone ([`SlabRays8::lane`]).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct SlabRays8 {
+    /// `inv[a][k]`: coordinate `a` of ray `k`'s reciprocal direction.
+    inv: [[f64; 8]; 3],
+}
+
+impl SlabRays8 {
+    /// `rays` prepared in lanes `n`: each ray's numbers, bit for bit, those
+    /// [`SlabRay::new`] makes of it.
+    #[inline(always)]
+    pub(crate) fn new<L: Lanes4>(n: Eight<L>, rays: &Rays8) -> SlabRays8 {
+        let (one, tiny) = (n.splat(1.0), n.splat(1e-300));
+        let inv = std::array::from_fn(|a| {
+            let d = n.load(&rays.dir[a]);
+            let mut inv = n.store(n.div(one, d));
+            // A magnitude below 10⁻³⁰⁰ (rare) is replaced lane by lane (`nonzero`).
+            for k in lanes_of(n.gt(tiny, n.abs(d))) {
+                inv[k] = 1.0 / nonzero(rays.dir[a][k]);
+            }
+            inv
+        });
+        SlabRays8 { inv }
+    }
+
+    /// The rays of `rays` (these rays' origins) that enter the box `(min, max)` within
+    /// `[t_min, t_max[k]]`, as a bit set: [`SlabRay::enter`] of each, in lanes `n`.
+    #[inline(always)]
+    pub(crate) fn enter8<L: Lanes4>(
+        &self,
+        n: Eight<L>,
+        rays: &Rays8,
+        bounds: (DVec3, DVec3),
+        t_min: f64,
+        t_max: &[f64; 8],
+    ) -> u32 {
+        let (origin, inv) = (n.load3(&rays.origin), n.load3(&self.inv));
+        slab_enter(n, origin, inv, bounds, n.splat(t_min), n.load(t_max)).1
+    }
+
+    /// Ray `k`'s [`SlabRay`], `origin` its origin.
+    #[inline(always)]
+    pub(crate) fn lane(&self, k: usize, origin: DVec3) -> SlabRay {
+        let inv = &self.inv;
+        SlabRay {
+            origin,
+            inv_dir: DVec3::new(inv[0][k], inv[1][k], inv[2][k]),
+        }
+    }
+}
+
+/// `if x < y { x } else { y }`: `minsd` (`minpd` in lanes), a single instruction.
+#[inline(always)]
+fn slab_min<A: Arith>(a: A, x: A::N, y: A::N) -> A::N {
+    a.pick_gt(y, x, x, y)
+}
+
+/// `if x > y { x } else { y }`: `maxsd` (`maxpd` in lanes), a single instruction.
+#[inline(always)]
+fn slab_max<A: Arith>(a: A, x: A::N, y: A::N) -> A::N {
+    a.pick_gt(x, y, x, y)
+}
+
 /// A ray prepared for many slab tests: its origin and reciprocal direction.
 #[derive(Debug, Clone, Copy)]
 pub struct SlabRay {
@@ -101,58 +216,33 @@ pub struct SlabRay {
     inv_dir: DVec3,
 }
 
-/// `min` and `max` as single instructions: the operands are never NaN here.
-#[inline(always)]
-fn fmin(a: f64, b: f64) -> f64 {
-    if a < b { a } else { b }
-}
-
-#[inline(always)]
-fn fmax(a: f64, b: f64) -> f64 {
-    if a > b { a } else { b }
-}
-
 impl SlabRay {
-    /// Prepares `origin + λ dir`.
-    ///
-    /// A zero direction component is replaced by a tiny one of the same sign, so the
-    /// reciprocal is finite and `0 · ∞ = NaN` never arises. A ray running exactly in a
-    /// box's face plane then counts as leaving it; the BVH pads its boxes (see
-    /// [`Aabb::padded`]), so such a plane never holds a surface point.
+    /// Prepares `origin + λ dir`, a zero direction component replaced by a tiny one
+    /// of the same sign (see `nonzero`).
     #[inline]
     pub fn new(origin: DVec3, dir: DVec3) -> Self {
-        let safe = |d: f64| {
-            if d.abs() < 1e-300 {
-                1e-300f64.copysign(d)
-            } else {
-                d
-            }
-        };
         Self {
             origin,
-            inv_dir: DVec3::new(1.0 / safe(dir.x), 1.0 / safe(dir.y), 1.0 / safe(dir.z)),
+            inv_dir: DVec3::new(
+                1.0 / nonzero(dir.x),
+                1.0 / nonzero(dir.y),
+                1.0 / nonzero(dir.z),
+            ),
         }
     }
 
     /// The entry `λ` of the ray into `[min, max]` clipped to `[t_min, t_max]`, if it enters.
     #[inline(always)]
     pub fn enter(&self, min: DVec3, max: DVec3, t_min: f64, t_max: f64) -> Option<f64> {
-        let t0x = (min.x - self.origin.x) * self.inv_dir.x;
-        let t1x = (max.x - self.origin.x) * self.inv_dir.x;
-        let t0y = (min.y - self.origin.y) * self.inv_dir.y;
-        let t1y = (max.y - self.origin.y) * self.inv_dir.y;
-        let t0z = (min.z - self.origin.z) * self.inv_dir.z;
-        let t1z = (max.z - self.origin.z) * self.inv_dir.z;
-        let near = fmax(
-            fmax(fmin(t0x, t1x), fmin(t0y, t1y)),
-            fmax(fmin(t0z, t1z), t_min),
+        let (near, enters) = slab_enter(
+            One,
+            self.origin.to_array(),
+            self.inv_dir.to_array(),
+            (min, max),
+            t_min,
+            t_max,
         );
-        let far = fmin(
-            fmin(fmax(t0x, t1x), fmax(t0y, t1y)),
-            fmin(fmax(t0z, t1z), t_max),
-        );
-        // 1 + 2γ₃ (pbrt): the far distance is rounded up so grazing rays are not lost.
-        (near <= far * (1.0 + 4.0 * f64::EPSILON)).then_some(near)
+        (enters == 1).then_some(near)
     }
 
     /// [`SlabRay::enter`] for two boxes at once, given axis by axis (`min[axis][box]`).
@@ -173,7 +263,8 @@ impl SlabRay {
     }
 
     /// Entry and exit `λ` of both boxes, two lanes at a time. `fast_min`/`fast_max` are
-    /// `minpd`/`maxpd` on x86-64, exactly `fmin`/`fmax` above (no NaN arises here).
+    /// `minpd`/`maxpd` on x86-64, exactly `slab_min` and `slab_max` (no NaN arises
+    /// here).
     #[inline(always)]
     fn slabs2(
         &self,
@@ -821,6 +912,53 @@ mod tests {
             prop_assert_eq!(one.is_some(), four.is_some());
             if let (Some(one), Some(four)) = (one, four) {
                 prop_assert_eq!(format!("{one:?}"), format!("{four:?}"));
+            }
+        }
+
+        /// Eight rays prepared together, in either kind of lanes, are each the ray
+        /// [`SlabRay::new`] prepares, bit for bit (directions of every size, zeros of
+        /// both signs and subnormals included, where a tiny stand-in replaces the
+        /// component), and enter a box exactly where [`SlabRay::enter`] says they do,
+        /// each within its own limit (infinite, zero, or NaN too).
+        #[test]
+        fn eight_rays_prepared_together_are_each_the_lone_ray(
+            o in prop::array::uniform8(prop::array::uniform3(-100.0f64..100.0)),
+            d in prop::array::uniform8(prop::array::uniform3(component())),
+            corners in prop::array::uniform2(prop::array::uniform3(-50.0f64..50.0)),
+            t_min in prop_oneof![Just(0.0), 0.0f64..1.0],
+            t_max in prop::array::uniform8(prop_oneof![
+                Just(f64::INFINITY),
+                Just(0.0),
+                Just(f64::NAN),
+                0.0f64..200.0,
+            ]),
+        ) {
+            let rays: [Ray; 8] = std::array::from_fn(|k| ray(o[k], d[k]));
+            let eight = Rays8::from_rays(&rays);
+            let (a, b) = (DVec3::from_array(corners[0]), DVec3::from_array(corners[1]));
+            let (min, max) = (a.min(b), a.max(b));
+            let check = |slabs: SlabRays8, enters: u32| -> Result<(), TestCaseError> {
+                for (k, r) in rays.iter().enumerate() {
+                    let (lone, lane) = (SlabRay::new(r.origin, r.dir), slabs.lane(k, r.origin));
+                    let bits = |v: DVec3| v.to_array().map(f64::to_bits);
+                    prop_assert_eq!(bits(lane.inv_dir), bits(lone.inv_dir), "ray {}", k);
+                    prop_assert_eq!(bits(lane.origin), bits(lone.origin));
+                    let alone = lone.enter(min, max, t_min, t_max[k]).is_some();
+                    prop_assert_eq!(enters >> k & 1 == 1, alone, "ray {} enters", k);
+                }
+                Ok(())
+            };
+            let n = Eight(crate::geometry::arith::Portable);
+            let slabs = SlabRays8::new(n, &eight);
+            check(slabs, slabs.enter8(n, &eight, (min, max), t_min, &t_max))?;
+            #[cfg(target_arch = "x86_64")]
+            if let Some(avx2) = x86::Avx2::detect() {
+                let n = Eight(avx2);
+                let (slabs, enters) = avx2.run(|| {
+                    let slabs = SlabRays8::new(n, &eight);
+                    (slabs, slabs.enter8(n, &eight, (min, max), t_min, &t_max))
+                });
+                check(slabs, enters)?;
             }
         }
 

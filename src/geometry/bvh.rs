@@ -14,13 +14,14 @@ use arrayvec::ArrayVec;
 use glam::DVec3;
 use rayon::prelude::*;
 
+use super::arith::{Eight, Lanes4};
 #[cfg(target_arch = "x86_64")]
 use super::bounds::x86::{Avx2, Avx512};
 use super::bounds::{
-    Aabb, Box32, BoxPair32, PairTest8, SlabRay, SlabRay4, WideTest, box32, lanes_of, lanes8,
-    within8,
+    Aabb, Box32, BoxPair32, PairTest8, SlabRay, SlabRay4, SlabRays8, WideTest, box32, lanes_of,
+    lanes8, within8,
 };
-use super::ray::Ray;
+use super::ray::{Ray, Rays8};
 use wide::{f32x4, f32x8};
 
 /// Primitives per leaf at most, when the SAH would rather not split.
@@ -746,33 +747,52 @@ impl Bvh {
         self.any_by_leaf(ray, t_min, t_max, first_blocker(leaf))
     }
 
-    /// [`Bvh::any`] with the ray's lanes for the wide tree made by the caller,
-    /// `lanes()` (`None` where its numbers do not fit them): nothing here enters code
-    /// compiled for AVX2 by a call of its own, for a caller compiled for it that makes
-    /// several rays' lanes at once
+    /// [`Bvh::any`] with the ray's numbers for the tree made by the caller,
+    /// `made()`: nothing here enters code compiled for AVX2 by a call of its own, for
+    /// a caller compiled for it that makes several rays' numbers at once
     /// ([`World::occluded_each`](super::world::World::occluded_each)).
     #[inline(always)]
-    pub fn any_prepared<W: WideTest, F: FnMut(u32) -> bool>(
+    pub(crate) fn any_prepared<W: WideTest, F: FnMut(u32) -> bool>(
         &self,
-        lanes: impl FnOnce() -> Option<W>,
+        made: impl FnOnce() -> TreeRay<W>,
         ray: &Ray,
         t_min: f64,
         t_max: f64,
         leaf: F,
     ) -> Option<u32> {
         let mut leaf = first_blocker(leaf);
-        if !self.wide.is_empty()
-            && let Some(lanes) = lanes()
-        {
-            return self.any_wide(&lanes, t_min, t_max, &mut leaf);
+        match made() {
+            TreeRay::Wide(lanes) if !self.wide.is_empty() => {
+                self.any_wide(&lanes, t_min, t_max, &mut leaf)
+            }
+            TreeRay::Exact(slab, enters) => enters
+                .then(|| self.any_exact_inside(&slab, t_min, t_max, leaf))
+                .flatten(),
+            _ => self.any_exact(&SlabRay::new(ray.origin, ray.dir), t_min, t_max, leaf),
         }
-        self.any_exact(&SlabRay::new(ray.origin, ray.dir), t_min, t_max, leaf)
     }
 
     /// Whether the tree has a wide form ([`Bvh::any_prepared`] takes lanes for it).
     #[inline(always)]
     pub fn is_wide(&self) -> bool {
         !self.wide.is_empty()
+    }
+
+    /// Which of `rays` (prepared as `slabs`) enter the tree's box within
+    /// `[t_min, t_max[k]]`, as a bit set: the binary tree's first test of each, made in
+    /// lanes `n` ([`SlabRays8::enter8`]); none for an empty tree.
+    #[inline(always)]
+    pub(crate) fn enters8<L: Lanes4>(
+        &self,
+        n: Eight<L>,
+        rays: &Rays8,
+        slabs: &SlabRays8,
+        t_min: f64,
+        t_max: &[f64; 8],
+    ) -> u32 {
+        self.nodes.first().map_or(0, |root| {
+            slabs.enter8(n, rays, (root.min, root.max), t_min, t_max)
+        })
     }
 
     /// [`Bvh::any`], a leaf at a time: the first of `leaf(prims)` over the leaves entered
@@ -896,10 +916,23 @@ impl Bvh {
         ray: &SlabRay,
         t_min: f64,
         t_max: f64,
-        mut leaf: F,
+        leaf: F,
     ) -> Option<T> {
         let root = self.nodes.first()?;
         ray.enter(root.min, root.max, t_min, t_max)?;
+        self.any_exact_inside(ray, t_min, t_max, leaf)
+    }
+
+    /// [`Bvh::any_exact`] of a ray known to enter the tree's box (of a tree with
+    /// nodes).
+    #[inline(always)]
+    fn any_exact_inside<T, F: FnMut(&[u32]) -> Option<T>>(
+        &self,
+        ray: &SlabRay,
+        t_min: f64,
+        t_max: f64,
+        mut leaf: F,
+    ) -> Option<T> {
         let mut stack: ArrayVec<u32, STACK_SIZE> = ArrayVec::new();
         let mut cur = self.root;
         loop {
@@ -955,6 +988,18 @@ fn first_blocker<F: FnMut(u32) -> bool>(mut leaf: F) -> impl FnMut(&[u32]) -> Op
         }
         None
     }
+}
+
+/// A ray's numbers for the tree's test, made by a caller that makes several rays'
+/// at once, for [`Bvh::any_prepared`].
+pub(crate) enum TreeRay<W> {
+    /// Its lanes for the wide tree.
+    Wide(W),
+    /// Its numbers for the binary tree ([`SlabRays8::lane`]), and whether it enters
+    /// the tree's box ([`Bvh::enters8`]).
+    Exact(SlabRay, bool),
+    /// None made (its numbers do not fit the wide tree's test): made by the tree.
+    Unmade,
 }
 
 /// How a build splits: a group's `test_cost` and the primitives a group holds (see

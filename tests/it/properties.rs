@@ -174,10 +174,17 @@ fn height_field(n: u32) -> Value {
 
 #[test]
 fn packets_of_eight_rays_find_what_each_ray_finds_alone() {
-    for seed in 31..=35 {
-        // The last is the height field alone: a world of one object, which packets and
-        // shadow rays go to without the world's tree.
-        let mut doc = random_scene(seed, if seed == 35 { 0 } else { 40 }, 60);
+    for seed in 31..=36 {
+        // Seed 35 is the height field alone: a world of one object, which packets and
+        // shadow rays go to without the world's tree. Seed 36 has four objects beside
+        // it: a tree too small for the wide form, tested in double precision (a
+        // packet's shadow rays prepared for it together, `SlabRays8`).
+        let objects = match seed {
+            35 => 0,
+            36 => 4,
+            _ => 40,
+        };
+        let mut doc = random_scene(seed, objects, 60);
         doc["objects"]
             .as_array_mut()
             .unwrap()
