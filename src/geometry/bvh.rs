@@ -774,7 +774,7 @@ impl Bvh {
 
     /// Whether the tree has a wide form ([`Bvh::any_prepared`] takes lanes for it).
     #[inline(always)]
-    pub fn is_wide(&self) -> bool {
+    pub(crate) fn is_wide(&self) -> bool {
         !self.wide.is_empty()
     }
 
