@@ -598,8 +598,9 @@ impl World {
     /// make one call, where each ray made two (the world's test, then the traversal's
     /// AVX2 code), each saving and restoring registers and setting up its frame. What
     /// does not depend on the hint is done for the eight rays at once, in lanes: the
-    /// planes' tests (`Solid::plane8`) and the rays' numbers for the wide tree
-    /// ([`Avx2::wide_rays`]).
+    /// planes' tests (`Solid::plane8`) and the rays' numbers for the tree: for the
+    /// wide tree its lanes ([`Avx2::wide_rays`]), for a tree too small to have one the
+    /// reciprocals and the test of the tree's box (`SlabRays8`, `Bvh::enters8`).
     pub fn occluded_each(
         &self,
         rays: &Rays8,
