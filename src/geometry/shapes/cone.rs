@@ -44,6 +44,11 @@ impl CanonicalShape for Cone {
     fn normal(&self, object_point: DVec3, part: u32) -> DVec3 {
         normal(object_point, part)
     }
+
+    fn flat_normal(&self, part: u32) -> Option<DVec3> {
+        // The base; the side's normal depends on the point.
+        (part == 1).then(|| normal(DVec3::ZERO, part))
+    }
 }
 
 /// With `k = 1 − y₀`, the side is `a λ² + b λ + c = 0`, `a = Δx² + Δz² − Δy²/4`,

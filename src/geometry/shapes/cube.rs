@@ -45,6 +45,10 @@ impl CanonicalShape for Cube {
         normal(part)
     }
 
+    fn flat_normal(&self, part: u32) -> Option<DVec3> {
+        Some(normal(part))
+    }
+
     fn face(&self, part: u32) -> Option<Face> {
         Some(face(part))
     }

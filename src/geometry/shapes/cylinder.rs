@@ -43,6 +43,11 @@ impl CanonicalShape for Cylinder {
     fn normal(&self, object_point: DVec3, part: u32) -> DVec3 {
         normal(object_point, part)
     }
+
+    fn flat_normal(&self, part: u32) -> Option<DVec3> {
+        // The caps; the side's normal depends on the point.
+        (part != 0).then(|| normal(DVec3::ZERO, part))
+    }
 }
 
 /// The side is `a λ² + b λ + c = 0` with `a = Δx² + Δz²`, `b = 2(x₀Δx + z₀Δz)`,

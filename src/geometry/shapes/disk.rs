@@ -35,6 +35,10 @@ impl CanonicalShape for Disk {
     fn normal(&self, _object_point: DVec3, _part: u32) -> DVec3 {
         super::plane::NORMAL
     }
+
+    fn flat_normal(&self, _part: u32) -> Option<DVec3> {
+        Some(super::plane::NORMAL)
+    }
 }
 
 /// The disk's hit `λ` in `(t_min, t_max)`; the rim counts.

@@ -137,6 +137,14 @@ pub trait CanonicalShape {
     /// closed shape, the geometric normal for an open one.
     fn normal(&self, object_point: DVec3, part: u32) -> DVec3;
 
+    /// [`CanonicalShape::normal`] of a part that is flat (a face, a cap, a plane),
+    /// the same at every point of it; `None` for a curved part. A world finds each
+    /// flat part's world normal once (`World::new`), not at every hit.
+    #[inline]
+    fn flat_normal(&self, _part: u32) -> Option<DVec3> {
+        None
+    }
+
     /// The cube face of a part, for shapes whose parts are faces.
     #[inline]
     fn face(&self, _part: u32) -> Option<Face> {
@@ -317,6 +325,14 @@ macro_rules! shapes {
                 match self {
                     $( Shape::$P => <$PT as CanonicalShape>::normal(&$PT, object_point, part), )*
                     $( Shape::$D(s) => <$DT as CanonicalShape>::normal(s, object_point, part), )*
+                }
+            }
+
+            /// See [`CanonicalShape::flat_normal`].
+            pub fn flat_normal(&self, part: u32) -> Option<DVec3> {
+                match self {
+                    $( Shape::$P => <$PT as CanonicalShape>::flat_normal(&$PT, part), )*
+                    $( Shape::$D(s) => <$DT as CanonicalShape>::flat_normal(s, part), )*
                 }
             }
 

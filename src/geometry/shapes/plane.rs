@@ -36,6 +36,10 @@ impl CanonicalShape for Plane {
     fn normal(&self, _object_point: DVec3, _part: u32) -> DVec3 {
         NORMAL
     }
+
+    fn flat_normal(&self, _part: u32) -> Option<DVec3> {
+        Some(NORMAL)
+    }
 }
 
 /// `λ = (height − y₀)/Δy`, skipped when `|Δy| < 1e-12`. `radius2` bounds `x² + z²` (a
