@@ -273,6 +273,13 @@ impl Hits8 {
         }
     }
 
+    /// Lane `k`'s ray's unit direction `d/|d|`: `−v`, bit for bit (a negation is
+    /// exact).
+    #[inline(always)]
+    pub fn unit_dir(&self, k: usize) -> DVec3 {
+        -DVec3::new(self.v[0][k], self.v[1][k], self.v[2][k])
+    }
+
     /// Puts into lane `k` a hit's point, its normal `n` facing the ray, its material
     /// and the ray's direction: the lane's own hit where `live`, else another's.
     #[inline(always)]

@@ -147,7 +147,12 @@ pub fn facing_normal(s: &Surface, dir: DVec3) -> DVec3 {
 // Always inlined, as `unshadowed_light_term` is.
 #[inline(always)]
 pub fn reflected_ray(s: &Surface, n: DVec3, dir: DVec3) -> Ray {
-    let i = dir.normalize();
+    mirror_ray(s, n, dir.normalize())
+}
+
+/// [`reflected_ray`] of the ray's unit direction `i`, found by the caller.
+#[inline(always)]
+fn mirror_ray(s: &Surface, n: DVec3, i: DVec3) -> Ray {
     let outside = s.point + n * surface_offset(s.point);
     let cos_i = -n.dot(i);
     Ray::new(outside, i + 2.0 * cos_i * n)
@@ -555,7 +560,12 @@ impl Shader<'_> {
         if self.secondaries {
             for (k, at) in at.iter().enumerate() {
                 if let Some(at) = at {
-                    let sends = self.secondaries_as::<(), Lecture>(&traced[k], depth, at, &mut ());
+                    // The unit direction the lights' terms took `v` from: found again,
+                    // its square root and division were the most of a mirror ray's
+                    // wait.
+                    let mirror = || mirror_ray(&at.s, at.n, hits8.unit_dir(k));
+                    let sends =
+                        self.secondaries_as::<(), Lecture>(&traced[k], depth, at, mirror, &mut ());
                     Sent8::put(&mut next, k, sends);
                 }
             }
@@ -648,8 +658,9 @@ impl Shader<'_> {
         rays: &mut RayCount,
         probe: &mut P,
     ) -> DVec3 {
+        let mirror = || reflected_ray(&at.s, at.n, ray.dir);
         for next in self
-            .secondaries_as::<P, C>(ray, depth, at, probe)
+            .secondaries_as::<P, C>(ray, depth, at, mirror, probe)
             .iter()
             .flatten()
         {
@@ -661,12 +672,14 @@ impl Shader<'_> {
     /// The secondary rays a hit of `ray` at `depth` sends, in the order their colours
     /// are added: the mirror ray, then the refracted one (none for a material without
     /// `mirror` or `transmission`, or at `max_depth`, which `probe` is told).
+    /// `mirror()` is the hit's [`reflected_ray`], as the caller makes it.
     #[inline(always)]
     fn secondaries_as<P: ShadingProbe, C: Conventions>(
         &self,
         ray: &Ray,
         depth: u32,
         at: &HitPoint,
+        mirror: impl Fn() -> Ray,
         probe: &mut P,
     ) -> [Option<Secondary>; 2] {
         let (s, n, m) = (&at.s, at.n, at.m);
@@ -686,7 +699,7 @@ impl Shader<'_> {
                     branch: Branch::Reflection,
                     total_internal_reflection: false,
                     weight: m.mirror,
-                    ray: reflected_ray(s, n, ray.dir),
+                    ray: mirror(),
                 });
             }
             if C::REFRACTION && m.transmission != DVec3::ZERO {
@@ -695,7 +708,7 @@ impl Shader<'_> {
                     branch: Branch::Refraction,
                     total_internal_reflection: refracted.is_none(),
                     weight: m.transmission,
-                    ray: refracted.unwrap_or_else(|| reflected_ray(s, n, ray.dir)),
+                    ray: refracted.unwrap_or_else(mirror),
                 });
             }
         }
