@@ -171,20 +171,20 @@ pub fn unshadowed_light_term(
     dir: DVec3,
     m: &Material,
 ) -> LightTerm {
-    light_term_as::<Lecture>(light, s, n, dir, m)
+    light_term_as::<Lecture>(light, s.point, n, dir, m)
 }
 
-/// [`unshadowed_light_term`] under conventions `C`.
+/// [`unshadowed_light_term`] under conventions `C`, at the surface point `point`.
 #[inline(always)]
 pub fn light_term_as<C: Conventions>(
     light: &Light,
-    s: &Surface,
+    point: DVec3,
     n: DVec3,
     dir: DVec3,
     m: &Material,
 ) -> LightTerm {
     let normal = n.to_array();
-    let (origin, to_light, t_max, colour, cone) = toward(One, light, s.point.to_array(), normal);
+    let (origin, to_light, t_max, colour, cone) = toward(One, light, point.to_array(), normal);
     let outside = cone.is_some_and(|(axis, cos_angle)| One.ge(axis, cos_angle) == 0);
     let mut term = LightTerm {
         shadow_ray: Ray::new(DVec3::from_array(origin), DVec3::from_array(to_light)),
@@ -241,9 +241,9 @@ pub(super) struct Hits8 {
     live: u32,
 }
 
-/// A packet lane's hit, as [`Hits8::fill`] takes it: its surface record, its normal
-/// facing the ray, its material, the ray's direction.
-pub(super) type HitLane<'a> = (&'a Surface, DVec3, &'a Material, DVec3);
+/// A packet lane's hit, as [`Hits8::fill`] takes it: its point, its normal facing the
+/// ray, its material, the ray's direction.
+pub(super) type HitLane<'a> = (DVec3, DVec3, &'a Material, DVec3);
 
 impl Hits8 {
     /// No lanes yet.
@@ -283,10 +283,10 @@ impl Hits8 {
     /// Puts into lane `k` a hit's point, its normal `n` facing the ray, its material
     /// and the ray's direction: the lane's own hit where `live`, else another's.
     #[inline(always)]
-    fn put(&mut self, k: usize, live: bool, (s, n, m, dir): HitLane) {
+    fn put(&mut self, k: usize, live: bool, (point, n, m, dir): HitLane) {
         let v = toward_viewer(dir);
         for (to, from) in [
-            (&mut self.p, s.point),
+            (&mut self.p, point),
             (&mut self.n, n),
             (&mut self.v, v),
             (&mut self.diffuse, m.diffuse),
@@ -504,7 +504,11 @@ mod tests {
         lights: &[Light],
     ) -> Result<(), TestCaseError> {
         let mut h = Hits8::EMPTY;
-        h.fill(|k| hits[k].as_ref().map(|(s, n, m, dir)| (s, *n, m, *dir)));
+        h.fill(|k| {
+            hits[k]
+                .as_ref()
+                .map(|(s, n, m, dir)| (s.point, *n, m, *dir))
+        });
         for light in lights {
             let got = light8_in(a, &h, light);
             for (k, hit) in hits.iter().enumerate() {
@@ -512,7 +516,7 @@ mod tests {
                     prop_assert_eq!(got.cast >> k & 1, 0, "lane {} has no hit", k);
                     continue;
                 };
-                let want = light_term_as::<Lecture>(light, s, *n, *dir, m);
+                let want = light_term_as::<Lecture>(light, s.point, *n, *dir, m);
                 let cast = got.cast >> k & 1 == 1;
                 prop_assert_eq!(cast, want.casts_shadow_ray(), "lane {}: {:?}", k, want);
                 if cast {
@@ -591,7 +595,7 @@ mod tests {
         let toward = DVec3::new(1.0, -0.2, 0.0);
         for shininess in [0.0, 0.5, 1.0, 32.0, 200.0] {
             let m = material(shininess);
-            let t = light_term_as::<Lecture>(&light, &s, s.normal, away, &m);
+            let t = light_term_as::<Lecture>(&light, s.point, s.normal, away, &m);
             assert!(t.r_dot_v < 0.0);
             let want = if shininess == 0.0 {
                 colour * m.specular
@@ -603,7 +607,7 @@ mod tests {
                 want.to_array().map(f64::to_bits),
                 "shininess {shininess}"
             );
-            let t = light_term_as::<Lecture>(&light, &s, s.normal, toward, &m);
+            let t = light_term_as::<Lecture>(&light, s.point, s.normal, toward, &m);
             assert!(t.r_dot_v > 0.0);
             assert_eq!(t.specular, colour * m.specular * t.r_dot_v.powf(shininess));
             assert!(t.specular.min_element() > 0.0);

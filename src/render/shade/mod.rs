@@ -143,37 +143,39 @@ pub fn facing_normal(s: &Surface, dir: DVec3) -> DVec3 {
     }
 }
 
-/// The mirror ray at a surface point hit along `dir`, `n` the normal facing the ray.
+/// The mirror ray at the surface point `point` hit along `dir`, `n` the normal facing
+/// the ray.
 // Always inlined, as `unshadowed_light_term` is.
 #[inline(always)]
-pub fn reflected_ray(s: &Surface, n: DVec3, dir: DVec3) -> Ray {
-    mirror_ray(s, n, dir.normalize())
+pub fn reflected_ray(point: DVec3, n: DVec3, dir: DVec3) -> Ray {
+    mirror_ray(point, n, dir.normalize())
 }
 
 /// [`reflected_ray`] of the ray's unit direction `i`, found by the caller.
 #[inline(always)]
-fn mirror_ray(s: &Surface, n: DVec3, i: DVec3) -> Ray {
-    let outside = s.point + n * surface_offset(s.point);
+fn mirror_ray(point: DVec3, n: DVec3, i: DVec3) -> Ray {
+    let outside = point + n * surface_offset(point);
     let cos_i = -n.dot(i);
     Ray::new(outside, i + 2.0 * cos_i * n)
 }
 
-/// The refracted ray at a surface point hit along `dir`, with `ior` the material's
-/// index (entering from air when the ray meets the outside of the surface), under
-/// conventions `C`; `None` under total internal reflection (where the refraction's
-/// weight goes to the mirror ray). Apart from [`reflected_ray`], so that a surface
-/// that only reflects (most mirrors) never pays for this one's square roots.
+/// The refracted ray at the surface point `point` hit along `dir` (on the outside of
+/// the surface where `front`), with `ior` the material's index (entering from air
+/// when the ray meets the outside), under conventions `C`; `None` under total
+/// internal reflection (where the refraction's weight goes to the mirror ray). Apart
+/// from [`reflected_ray`], so that a surface that only reflects (most mirrors) never
+/// pays for this one's square roots.
 #[inline(always)]
 pub fn refracted_ray_as<C: Conventions>(
-    s: &Surface,
+    (point, front): (DVec3, bool),
     n: DVec3,
     dir: DVec3,
     ior: f64,
 ) -> Option<Ray> {
     let i = dir.normalize();
-    let inside = s.point - n * surface_offset(s.point);
+    let inside = point - n * surface_offset(point);
     let cos_i = -n.dot(i);
-    let eta = if s.front != C::INVERTED_ETA {
+    let eta = if front != C::INVERTED_ETA {
         1.0 / ior
     } else {
         ior
@@ -251,9 +253,14 @@ impl ShadingProbe for () {
     fn secondary(&mut self, _branch: Branch, _total_internal_reflection: bool) {}
 }
 
-/// A hit ready to shade: its surface record, the normal facing the ray, its material.
+/// A hit ready to shade, as shading reads its surface record: the point, whether the
+/// ray met the outside of the surface, the normal facing the ray, the material. Not
+/// the whole record: a packet keeps its eight hits' until their secondary rays are
+/// made, and kept whole, each record's object-space point was computed for nothing
+/// (a flat part's normal does not need it).
 struct HitPoint<'a> {
-    s: Surface,
+    point: DVec3,
+    front: bool,
     n: DVec3,
     m: &'a Material,
 }
@@ -449,8 +456,8 @@ impl Shader<'_> {
         rays: &mut RayCount,
         probe: &mut P,
     ) -> DVec3 {
-        let (at, ambient) = self.hit_point_as::<C>(ray, &hit, false);
-        probe.surface(&hit, &at.s, at.n, at.m, ambient);
+        let (s, at, ambient) = self.hit_point_as::<C>(ray, &hit, false);
+        probe.surface(&hit, &s, at.n, at.m, ambient);
         let c = self.add_lights_as::<P, C>(ray, depth, &at, ambient, rays, probe);
         self.add_secondaries_as::<P, C>(ray, depth, &at, c, rays, probe)
     }
@@ -468,7 +475,7 @@ impl Shader<'_> {
         probe: &mut P,
     ) -> DVec3 {
         for (k, light) in self.scene.lights.iter().enumerate() {
-            let t = light_term_as::<C>(light, &at.s, at.n, ray.dir, at.m);
+            let t = light_term_as::<C>(light, at.point, at.n, ray.dir, at.m);
             if !t.casts_shadow_ray() {
                 probe.light(k, light, &t, None);
                 continue;
@@ -537,12 +544,12 @@ impl Shader<'_> {
         let mut at: [Option<HitPoint>; 8] = std::array::from_fn(|_| None);
         for (k, hit) in hits.iter().enumerate() {
             if let Some(hit) = hit {
-                let (point, ambient) = self.hit_point_as::<Lecture>(&traced[k], hit, PRIMARY);
+                let (_, point, ambient) = self.hit_point_as::<Lecture>(&traced[k], hit, PRIMARY);
                 (at[k], c[k]) = (Some(point), ambient);
             }
         }
         let mut hits8 = light::Hits8::EMPTY;
-        hits8.fill(|k| at[k].as_ref().map(|a| (&a.s, a.n, a.m, traced[k].dir)));
+        hits8.fill(|k| at[k].as_ref().map(|a| (a.point, a.n, a.m, traced[k].dir)));
         let packets = self.world.traces_shadow_packets();
         for (j, light) in self.scene.lights.iter().enumerate() {
             let t = light::light8(&hits8, light);
@@ -563,7 +570,7 @@ impl Shader<'_> {
                     // The unit direction the lights' terms took `v` from: found again,
                     // its square root and division were the most of a mirror ray's
                     // wait.
-                    let mirror = || mirror_ray(&at.s, at.n, hits8.unit_dir(k));
+                    let mirror = || mirror_ray(at.point, at.n, hits8.unit_dir(k));
                     let sends =
                         self.secondaries_as::<(), Lecture>(&traced[k], depth, at, mirror, &mut ());
                     Sent8::put(&mut next, k, sends);
@@ -620,15 +627,16 @@ impl Shader<'_> {
     }
 
     /// What shading a hit of `ray` starts from: its surface record under conventions
-    /// `C`, the normal facing the ray, its material; and the ambient term. `view` says
-    /// that the caller knows `ray` to be a primary ray ([`World::view_surface`]).
+    /// `C`, and what shading reads of it with the normal facing the ray and its
+    /// material; and the ambient term. `view` says that the caller knows `ray` to be a
+    /// primary ray ([`World::view_surface`]).
     #[inline(always)]
     fn hit_point_as<C: Conventions>(
         &self,
         ray: &Ray,
         hit: &Hit,
         view: bool,
-    ) -> (HitPoint<'_>, DVec3) {
+    ) -> (Surface, HitPoint<'_>, DVec3) {
         let object = &self.scene.objects[hit.object as usize];
         let found = if view {
             self.world.view_surface(ray, hit)
@@ -643,7 +651,13 @@ impl Shader<'_> {
         } else {
             DVec3::ZERO
         };
-        (HitPoint { s, n, m }, ambient)
+        let at = HitPoint {
+            point: s.point,
+            front: s.front,
+            n,
+            m,
+        };
+        (s, at, ambient)
     }
 
     /// `c`, the colour of a hit of `ray` at `depth` so far, with what its secondary rays
@@ -658,7 +672,7 @@ impl Shader<'_> {
         rays: &mut RayCount,
         probe: &mut P,
     ) -> DVec3 {
-        let mirror = || reflected_ray(&at.s, at.n, ray.dir);
+        let mirror = || reflected_ray(at.point, at.n, ray.dir);
         for next in self
             .secondaries_as::<P, C>(ray, depth, at, mirror, probe)
             .iter()
@@ -682,7 +696,7 @@ impl Shader<'_> {
         mirror: impl Fn() -> Ray,
         probe: &mut P,
     ) -> [Option<Secondary>; 2] {
-        let (s, n, m) = (&at.s, at.n, at.m);
+        let (n, m) = (at.n, at.m);
         let mut next = [None; 2];
         if !m.sends_secondaries() {
             probe.no_secondary(NoSecondary::Material);
@@ -703,7 +717,7 @@ impl Shader<'_> {
                 });
             }
             if C::REFRACTION && m.transmission != DVec3::ZERO {
-                let refracted = refracted_ray_as::<C>(s, n, ray.dir, m.ior);
+                let refracted = refracted_ray_as::<C>((at.point, at.front), n, ray.dir, m.ior);
                 next[1] = Some(Secondary {
                     branch: Branch::Refraction,
                     total_internal_reflection: refracted.is_none(),
