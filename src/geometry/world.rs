@@ -907,6 +907,10 @@ impl World {
     /// that part is flat.
     #[inline(always)]
     fn flat_normal(&self, i: u32, part: u32) -> Option<DVec3> {
+        // The shape is asked first, from the object's test data the hit has just read:
+        // a curved part reads nothing more (the list cost a scene of 100 000 spheres
+        // a cache miss a hit, and 1 % more render time).
+        self.solids.get(i as usize)?.shape.flat_normal(part)?;
         let FlatNormals(normals) = self.flat_normals.get(i as usize)?.as_ref()?;
         *normals.get(part as usize)?
     }
